@@ -1,0 +1,11 @@
+"""artrecon: occlusion-aware reconstruction of articulated objects from two image sets.
+
+The library works on any two folders of images; it never imports the simulation harness (`sim`)
+and never sees ground truth.
+"""
+
+import logging
+
+__version__ = "0.1.0"
+
+logging.getLogger(__name__).addHandler(logging.NullHandler())
