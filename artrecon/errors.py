@@ -1,0 +1,17 @@
+"""Errors raised by artrecon. Each message says what was wrong, where, and what to do."""
+
+
+class ArtreconError(Exception):
+    """Base class of every error the reconstruction raises on purpose."""
+
+
+class InputError(ArtreconError, ValueError):
+    """The input (folder, image, array) is missing, unreadable or malformed."""
+
+
+class DegenerateError(ArtreconError):
+    """The data cannot determine the answer (too few points, collinear points, no motion...)."""
+
+
+class ReconstructionError(ArtreconError):
+    """A stage could not do its job (SfM failed, too few matches, no link found...)."""
