@@ -15,3 +15,11 @@ class DegenerateError(ArtreconError):
 
 class ReconstructionError(ArtreconError):
     """A stage could not do its job (SfM failed, too few matches, no link found...)."""
+
+
+class NoMotionError(DegenerateError):
+    """The two configurations are identical: no link moved, so no joint can be observed."""
+
+
+class SingleBodyError(DegenerateError):
+    """Everything moved as one rigid body (one link found): no joint can be observed."""

@@ -1,0 +1,340 @@
+"""The articulated model: rigid links (oriented points) and the joints between them, with JSON I/O.
+
+Frame and units: everything is in the frame of configuration A's reconstruction (the "model frame")
+and its units ("model units"); `ArticulatedModel.scale` converts to metres once registration has
+set it. `frames` holds named 4x4 poses `T_a_b` (p_a = T_a_b @ p_b), e.g. "T_world_model".
+
+JSON is lossless: float64 arrays are written with Python's shortest round-trip repr, integer and
+uint8 arrays keep their dtype, and NaN/inf survive (json's non-standard NaN/Infinity tokens).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from artrecon.errors import InputError
+from artrecon.procrustes import Similarity
+
+log = logging.getLogger(__name__)
+
+__all__ = ["Link", "Joint", "ArticulatedModel", "JOINT_TYPES", "FORMAT_VERSION"]
+
+JOINT_TYPES = ("revolute", "prismatic")
+FORMAT_VERSION = 1
+
+
+def _array(name: str, value, shape_tail: tuple[int, ...], dtype=float) -> np.ndarray:
+    a = np.asarray(value, dtype=dtype)
+    if a.ndim != 1 + len(shape_tail) or a.shape[1:] != shape_tail:
+        tail = ", ".join(map(str, shape_tail))
+        raise ValueError(f"{name} must have shape (n, {tail}), got {a.shape}")
+    return a
+
+
+def _vec3(name: str, value) -> np.ndarray:
+    a = np.asarray(value, dtype=float).reshape(-1)
+    if a.shape != (3,):
+        raise ValueError(f"{name} must have shape (3,), got {np.shape(value)}")
+    return a
+
+
+@dataclass
+class Link:
+    """One rigid link.
+
+    Attributes
+    ----------
+    points : (n, 3) float
+        Points of the link in the model frame (configuration A).
+    match_indices : (n,) int
+        For each point, the index of the 3D-3D match it came from, or -1 (e.g. a dense point).
+    transform_a_to_b : Similarity
+        Maps the link from configuration A to configuration B (p_b ~ T.apply(p_a)).
+    colours : (n, 3) uint8, optional
+        RGB.
+    normals : (n, 3) float, optional
+        Unit normals, where known.
+    name : str
+    """
+
+    points: np.ndarray
+    match_indices: np.ndarray
+    transform_a_to_b: Similarity = field(default_factory=Similarity)
+    colours: np.ndarray | None = None
+    normals: np.ndarray | None = None
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        self.points = _array("Link.points", self.points, (3,))
+        n = len(self.points)
+        self.match_indices = np.asarray(self.match_indices, dtype=np.int64).reshape(-1)
+        if self.match_indices.shape != (n,):
+            raise ValueError(
+                f"Link.match_indices must have shape ({n},), got {self.match_indices.shape}"
+            )
+        if self.colours is not None:
+            self.colours = _array("Link.colours", self.colours, (3,), dtype=np.uint8)
+            if len(self.colours) != n:
+                raise ValueError(f"Link.colours must have shape ({n}, 3), got {self.colours.shape}")
+        if self.normals is not None:
+            self.normals = _array("Link.normals", self.normals, (3,))
+            if len(self.normals) != n:
+                raise ValueError(f"Link.normals must have shape ({n}, 3), got {self.normals.shape}")
+
+    @property
+    def centroid(self) -> np.ndarray:
+        """(3,) float."""
+        return self.points.mean(axis=0)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+@dataclass
+class Joint:
+    """A revolute or prismatic joint between a parent and a child link.
+
+    Attributes
+    ----------
+    type : str
+        "revolute" or "prismatic".
+    axis_direction : (3,) float
+        Unit vector, model frame. Oriented so that the motion from configuration A to B is
+        positive (right-hand rule for revolute).
+    axis_point : (3,) float
+        A point on the axis, model frame (revolute: the rotation centre nearest the child's
+        centroid; prismatic: the smaller link's centroid).
+    parent, child : int
+        Link indices.
+    state_a, state_b : float
+        Joint value in configurations A and B: angle in rad (revolute) or displacement in model
+        units (prismatic). Configuration A is the zero: state_a = 0, state_b = the change.
+    name : str
+    relative_transform : Similarity
+        Motion of the child relative to the parent, in the model frame (T_parent^-1 T_child).
+    residual : float
+        How far the relative motion is from a pure single joint (model units; revolute: slide
+        along the axis, prismatic: rotation-induced displacement of the child).
+    """
+
+    type: str
+    axis_direction: np.ndarray
+    axis_point: np.ndarray
+    parent: int
+    child: int
+    state_a: float = 0.0
+    state_b: float = 0.0
+    name: str = ""
+    relative_transform: Similarity = field(default_factory=Similarity)
+    residual: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.type not in JOINT_TYPES:
+            raise ValueError(f"Joint.type must be one of {JOINT_TYPES}, got {self.type!r}")
+        self.axis_direction = _vec3("Joint.axis_direction", self.axis_direction)
+        norm = np.linalg.norm(self.axis_direction)
+        if not np.isfinite(norm) or norm == 0:
+            raise ValueError(f"Joint.axis_direction must be non-zero, got {self.axis_direction}")
+        if abs(norm - 1.0) > 1e-9:
+            self.axis_direction = self.axis_direction / norm
+        self.axis_point = _vec3("Joint.axis_point", self.axis_point)
+        self.parent = int(self.parent)
+        self.child = int(self.child)
+        self.state_a = float(self.state_a)
+        self.state_b = float(self.state_b)
+        self.residual = float(self.residual)
+        if not self.name:
+            self.name = f"joint_{self.parent}_{self.child}"
+
+    @property
+    def motion(self) -> float:
+        """state_b - state_a."""
+        return self.state_b - self.state_a
+
+
+@dataclass
+class ArticulatedModel:
+    """Links, joints (a tree rooted at `root`), scale and named frames.
+
+    Attributes
+    ----------
+    links : list of Link
+    joints : list of Joint
+        One per non-root link; each joint's child is that link.
+    scale : float
+        Metres per model unit (1.0 until registration sets it; see `scale_known`).
+    frames : dict of str -> (4, 4) float
+        Named poses T_a_b, e.g. "T_world_model".
+    root : int
+        Index of the root link (the largest).
+    scale_a_to_b : float
+        Common similarity scale between the two configurations' reconstructions.
+    scale_known : bool
+        True once `scale` is metric.
+    metadata : dict
+        JSON-serialisable provenance (seed, config, counts...).
+    """
+
+    links: list[Link]
+    joints: list[Joint]
+    scale: float = 1.0
+    frames: dict[str, np.ndarray] = field(default_factory=dict)
+    root: int = 0
+    scale_a_to_b: float = 1.0
+    scale_known: bool = False
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n = len(self.links)
+        for j in self.joints:
+            for end in (j.parent, j.child):
+                if not 0 <= end < n:
+                    raise ValueError(f"joint {j.name!r} refers to link {end}, model has {n} links")
+        if n and not 0 <= self.root < n:
+            raise ValueError(f"root must be a link index in [0, {n}), got {self.root}")
+        frames = {}
+        for name, m in self.frames.items():
+            m = np.asarray(m, dtype=float)
+            if m.shape != (4, 4):
+                raise ValueError(f"frame {name!r} must have shape (4, 4), got {m.shape}")
+            frames[name] = m
+        self.frames = frames
+
+    def parent_of(self, link: int) -> int | None:
+        for j in self.joints:
+            if j.child == link:
+                return j.parent
+        return None
+
+    def children_of(self, link: int) -> list[int]:
+        return [j.child for j in self.joints if j.parent == link]
+
+    # --- JSON --------------------------------------------------------------------------------
+
+    def to_dict(self) -> dict:
+        return {
+            "format": "artrecon.ArticulatedModel",
+            "version": FORMAT_VERSION,
+            "scale": self.scale,
+            "scale_known": self.scale_known,
+            "scale_a_to_b": self.scale_a_to_b,
+            "root": self.root,
+            "frames": {k: _encode(v) for k, v in self.frames.items()},
+            "links": [
+                {
+                    "name": lk.name,
+                    "points": _encode(lk.points),
+                    "match_indices": _encode(lk.match_indices),
+                    "colours": _encode(lk.colours),
+                    "normals": _encode(lk.normals),
+                    "transform_a_to_b": lk.transform_a_to_b.to_dict(),
+                }
+                for lk in self.links
+            ],
+            "joints": [
+                {
+                    "name": j.name,
+                    "type": j.type,
+                    "axis_direction": j.axis_direction.tolist(),
+                    "axis_point": j.axis_point.tolist(),
+                    "parent": j.parent,
+                    "child": j.child,
+                    "state_a": j.state_a,
+                    "state_b": j.state_b,
+                    "relative_transform": j.relative_transform.to_dict(),
+                    "residual": j.residual,
+                }
+                for j in self.joints
+            ],
+            "metadata": self.metadata,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ArticulatedModel:
+        if d.get("format") != "artrecon.ArticulatedModel":
+            raise InputError(
+                f"not an artrecon articulated model (format={d.get('format')!r}); expected a file "
+                "written by ArticulatedModel.save"
+            )
+        if d.get("version") != FORMAT_VERSION:
+            raise InputError(
+                f"articulated model format version {d.get('version')} is not supported (this "
+                f"artrecon reads version {FORMAT_VERSION}); re-export the model"
+            )
+        links = [
+            Link(
+                points=_decode(lk["points"]),
+                match_indices=_decode(lk["match_indices"]),
+                transform_a_to_b=Similarity.from_dict(lk["transform_a_to_b"]),
+                colours=_decode(lk["colours"]),
+                normals=_decode(lk["normals"]),
+                name=lk["name"],
+            )
+            for lk in d["links"]
+        ]
+        joints = [
+            Joint(
+                type=j["type"],
+                axis_direction=np.array(j["axis_direction"], dtype=float),
+                axis_point=np.array(j["axis_point"], dtype=float),
+                parent=j["parent"],
+                child=j["child"],
+                state_a=j["state_a"],
+                state_b=j["state_b"],
+                name=j["name"],
+                relative_transform=Similarity.from_dict(j["relative_transform"]),
+                residual=j["residual"],
+            )
+            for j in d["joints"]
+        ]
+        return cls(
+            links=links,
+            joints=joints,
+            scale=float(d["scale"]),
+            frames={k: _decode(v) for k, v in d["frames"].items()},
+            root=int(d["root"]),
+            scale_a_to_b=float(d["scale_a_to_b"]),
+            scale_known=bool(d["scale_known"]),
+            metadata=d.get("metadata", {}),
+        )
+
+    def save(self, path: str | Path) -> Path:
+        """Write the model as JSON (lossless); returns the path."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(self.to_dict(), indent=1))
+        log.info("saved articulated model (%d links, %d joints) to %s",
+                 len(self.links), len(self.joints), path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> ArticulatedModel:
+        """Read a model written by `save`."""
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(
+                f"articulated model file {path} does not exist; run the reconstruction first"
+            )
+        try:
+            d = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise InputError(f"{path} is not valid JSON ({exc}); re-export the model") from exc
+        return cls.from_dict(d)
+
+
+def _encode(a: np.ndarray | None):
+    if a is None:
+        return None
+    a = np.asarray(a)
+    return {"dtype": a.dtype.str, "shape": list(a.shape), "data": a.reshape(-1).tolist()}
+
+
+def _decode(d) -> np.ndarray | None:
+    if d is None:
+        return None
+    return np.array(d["data"], dtype=np.dtype(d["dtype"])).reshape(d["shape"])
