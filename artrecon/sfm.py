@@ -21,8 +21,11 @@ Two modes:
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
 import shutil
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -104,13 +107,27 @@ class SfMResult:
         return K
 
 
-def _setup_colmap_log(out_dir: Path) -> Path:
-    path = out_dir / "colmap.log"
-    pycolmap.logging.set_log_destination(pycolmap.logging.INFO, str(path))
-    pycolmap.logging.logtostderr = False
-    pycolmap.logging.alsologtostderr = False
-    pycolmap.logging.minloglevel = 0
-    return path
+@contextlib.contextmanager
+def colmap_log(path: Path):
+    """Send COLMAP's log (glog, written to the process's stderr) to ``path`` for the block.
+
+    glog's own file sink appends a time stamp to every file name, so the stderr descriptor is
+    redirected instead. Yields a text stream on the original stderr for progress bars.
+    """
+    path = Path(path)
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with open(path, "a") as sink:
+        os.dup2(sink.fileno(), 2)
+        console = os.fdopen(os.dup(saved), "w")
+        try:
+            yield console
+        finally:
+            console.flush()
+            console.close()
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
 
 
 def extract(image_set: ImageSet, database_path: Path, intrinsics: Intrinsics | None,
@@ -217,7 +234,7 @@ def _mapping_options(intrinsics: Intrinsics | None, config: SfMConfig, seed: int
 
 def _map_incremental(image_set: ImageSet, database_path: Path, out_dir: Path,
                      intrinsics: Intrinsics | None, config: SfMConfig, seed: int,
-                     progress: bool) -> pycolmap.Reconstruction:
+                     progress) -> pycolmap.Reconstruction:
     opts = _mapping_options(intrinsics, config, seed)
     work = out_dir / "mapping"
     if work.exists():
@@ -228,7 +245,7 @@ def _map_incremental(image_set: ImageSet, database_path: Path, out_dir: Path,
         from tqdm import tqdm
 
         bar = tqdm(total=len(image_set.names), desc=f"SfM {image_set.root.name}", unit="img",
-                   leave=False)
+                   leave=False, file=progress)
     count = {"n": 0}
 
     def _initial():
@@ -334,27 +351,30 @@ def run_sfm(image_set: ImageSet, out_dir: str | Path, intrinsics: Intrinsics | N
     out_dir.mkdir(parents=True, exist_ok=True)
     if poses is not None and intrinsics is None:
         raise ValueError("run_sfm: known poses need known intrinsics too")
-    _setup_colmap_log(out_dir)
     pycolmap.set_random_seed(seed)
     timings = {}
     db_path = out_dir / "database.db"
-    t = time.perf_counter()
-    extract(image_set, db_path, intrinsics, config)
-    timings["extract"] = time.perf_counter() - t
-    t = time.perf_counter()
-    feats = read_features(db_path)
-    pairs = select_pairs(image_set.names, feats, config, seed)
-    timings["pairs"] = time.perf_counter() - t
-    t = time.perf_counter()
-    match(db_path, pairs, out_dir, config)
-    timings["match"] = time.perf_counter() - t
-    log.info("%s: %d images, %d pairs matched", image_set.root, len(image_set.names), len(pairs))
-    t = time.perf_counter()
-    if poses is None:
-        rec = _map_incremental(image_set, db_path, out_dir, intrinsics, config, seed, progress)
-    else:
-        rec = _triangulate_known_poses(image_set, db_path, out_dir, intrinsics, poses, config, seed)
-    timings["map"] = time.perf_counter() - t
+    with colmap_log(out_dir / "colmap.log") as console:
+        t = time.perf_counter()
+        extract(image_set, db_path, intrinsics, config)
+        timings["extract"] = time.perf_counter() - t
+        t = time.perf_counter()
+        feats = read_features(db_path)
+        pairs = select_pairs(image_set.names, feats, config, seed)
+        timings["pairs"] = time.perf_counter() - t
+        t = time.perf_counter()
+        match(db_path, pairs, out_dir, config)
+        timings["match"] = time.perf_counter() - t
+        log.info("%s: %d images, %d pairs matched", image_set.root, len(image_set.names),
+                 len(pairs))
+        t = time.perf_counter()
+        if poses is None:
+            rec = _map_incremental(image_set, db_path, out_dir, intrinsics, config, seed,
+                                   console if progress else None)
+        else:
+            rec = _triangulate_known_poses(image_set, db_path, out_dir, intrinsics, poses, config,
+                                           seed)
+        timings["map"] = time.perf_counter() - t
     model_dir = out_dir / "sparse" / "0"
     model_dir.mkdir(parents=True, exist_ok=True)
     rec.write(model_dir)
