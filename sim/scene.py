@@ -1,0 +1,450 @@
+"""Scenes: load an MJCF scene and read the articulated object's ground truth from it.
+
+A scene file (see ``scenes/README.md``) includes the shared stage and adds one object:
+
+- the object's root body is named ``"object"``; it and its descendant bodies are the object's
+  bodies. A *link* is a rigid group of them: the root body, or a descendant body that carries a
+  joint, together with every descendant welded to it (no joint in between);
+- each joint of those bodies is an object joint: ``hinge`` (revolute) or ``slide`` (prismatic),
+  one per body, with a range;
+- the two configurations of the object (before and after the interaction) are declared per joint
+  by name as ``<custom><numeric name="config_a:JOINT" data="VALUE"/>`` (and ``config_b:JOINT``),
+  in the joint's units (radians for hinges, metres for slides).
+
+``load_scene`` compiles the file, checks all of the above and returns a :class:`Scene` with the
+compiled model and the ground truth: links, and for each joint its type, axis direction and a
+point on the axis in the world frame at configuration A, its parent and child link and its
+values in both configurations. Any violation raises :class:`SceneError` naming the file, the
+element and the fix.
+
+Ground truth stays in the harness (``sim``); the reconstruction (``artrecon``) never sees it.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+#: Folder of the bundled scenes; ``ARTRECON_SCENES_DIR`` points elsewhere (a folder laid out the
+#: same way: scene files beside ``stage.xml``).
+SCENES_DIR = Path(os.environ.get("ARTRECON_SCENES_DIR",
+                                 Path(__file__).resolve().parents[1] / "scenes"))
+
+#: Files in the scenes folder that are not scenes themselves.
+NON_SCENE_FILES = frozenset({"stage.xml"})
+
+#: Name of the object's root body.
+OBJECT_BODY = "object"
+
+#: Names of the two configurations and the prefix of their ``<numeric>`` elements.
+CONFIGURATIONS = ("a", "b")
+CONFIG_PREFIX = "config_"
+
+#: Slack when checking that a configuration value lies in its joint's range: the values are
+#: written in decimal in the XML (e.g. 0.5236 for 30 deg) and MuJoCo stores ranges as float64,
+#: so only a representation error, far below any physical meaning, is forgiven.
+RANGE_TOLERANCE = 1e-9
+
+JOINT_TYPES = {int(mujoco.mjtJoint.mjJNT_HINGE): "revolute",
+               int(mujoco.mjtJoint.mjJNT_SLIDE): "prismatic"}
+_MJ_JOINT_NAMES = {int(mujoco.mjtJoint.mjJNT_FREE): "free",
+                   int(mujoco.mjtJoint.mjJNT_BALL): "ball",
+                   int(mujoco.mjtJoint.mjJNT_SLIDE): "slide",
+                   int(mujoco.mjtJoint.mjJNT_HINGE): "hinge"}
+
+
+class SceneError(ValueError):
+    """A scene file is missing, does not compile, or breaks the scene conventions."""
+
+
+@dataclass(frozen=True)
+class Link:
+    """A rigid link of the object.
+
+    Attributes
+    ----------
+    name : str
+        Name of the link's root body (``"object"`` for the base link).
+    body_ids : tuple of int
+        Ids of every MuJoCo body of the link, its root first.
+    body_names : tuple of str
+        Their names (a nameless body shows as ``""``).
+    """
+
+    name: str
+    body_ids: tuple[int, ...]
+    body_names: tuple[str, ...]
+
+    @property
+    def body_id(self) -> int:
+        """Id of the link's root body."""
+        return self.body_ids[0]
+
+
+@dataclass(frozen=True, eq=False)
+class Joint:
+    """Ground truth of one object joint.
+
+    Attributes
+    ----------
+    name : str
+        MuJoCo joint name.
+    type : str
+        ``"revolute"`` (MuJoCo hinge) or ``"prismatic"`` (MuJoCo slide).
+    joint_id, qpos_adr, dof_adr : int
+        Indices into the compiled model.
+    axis : (3,) float
+        Unit axis direction in the world frame at configuration A (positive joint values turn
+        the child right-handed about it / move the child along it).
+    point : (3,) float
+        A point on the axis in the world frame at configuration A (the joint's anchor; for a
+        prismatic joint any point of the line is as good as this one).
+    parent, child : str
+        Names of the parent link (``"world"`` if the object's root itself moves) and child link.
+    range : (2,) float
+        Joint limits (rad or m).
+    value_a, value_b : float
+        Joint values in configurations A and B (rad or m).
+    """
+
+    name: str
+    type: str
+    joint_id: int
+    qpos_adr: int
+    dof_adr: int
+    axis: np.ndarray
+    point: np.ndarray
+    parent: str
+    child: str
+    range: np.ndarray
+    value_a: float
+    value_b: float
+
+    def value(self, configuration: str) -> float:
+        """Joint value in configuration ``"a"`` or ``"b"``."""
+        return self.value_a if _check_configuration(configuration) == "a" else self.value_b
+
+    @property
+    def motion(self) -> float:
+        """``value_b - value_a``: the joint's motion between the configurations (rad or m)."""
+        return self.value_b - self.value_a
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """A compiled scene and the ground truth of its object.
+
+    Attributes
+    ----------
+    name : str
+        Scene name (file stem).
+    path : pathlib.Path
+        Absolute path of the scene file.
+    model : mujoco.MjModel
+        The compiled model (stage, arm and object).
+    links : tuple of Link
+        The object's links, base link (``"object"``) first, then in body order.
+    joints : tuple of Joint
+        The object's joints in model order.
+    """
+
+    name: str
+    path: Path
+    model: mujoco.MjModel
+    links: tuple[Link, ...]
+    joints: tuple[Joint, ...]
+
+    def joint(self, name: str) -> Joint:
+        """The object joint called ``name``."""
+        for j in self.joints:
+            if j.name == name:
+                return j
+        raise KeyError(f"scene {self.name!r} has no object joint {name!r}; "
+                       f"its joints are {[j.name for j in self.joints]}")
+
+    def link(self, name: str) -> Link:
+        """The object link whose root body is called ``name``."""
+        for li in self.links:
+            if li.name == name:
+                return li
+        raise KeyError(f"scene {self.name!r} has no object link {name!r}; "
+                       f"its links are {[li.name for li in self.links]}")
+
+    def configuration(self, configuration: str) -> dict[str, float]:
+        """Joint values ``{joint name: value}`` of configuration ``"a"`` or ``"b"``."""
+        return {j.name: j.value(configuration) for j in self.joints}
+
+    def set_configuration(self, data: mujoco.MjData, configuration: str,
+                          forward: bool = True) -> None:
+        """Put the object of ``data`` in configuration ``"a"`` or ``"b"``.
+
+        Sets the object joints' positions (and zeroes their velocities); the arm and rail are
+        left as they are. With ``forward`` runs ``mj_forward`` so poses are up to date.
+        """
+        self.set_joint_values(data, self.configuration(configuration), forward=forward)
+
+    def set_joint_values(self, data: mujoco.MjData, values: Mapping[str, float],
+                         forward: bool = True) -> None:
+        """Set object joints ``{name: value}`` in ``data`` (others unchanged), zero their
+        velocities and, with ``forward``, run ``mj_forward``."""
+        if data.qpos.shape != (self.model.nq,):
+            raise ValueError(f"expected MjData of this scene's model with qpos of shape "
+                             f"({self.model.nq},), got {data.qpos.shape}")
+        for name, value in values.items():
+            j = self.joint(name)
+            data.qpos[j.qpos_adr] = float(value)
+            data.qvel[j.dof_adr] = 0.0
+        if forward:
+            mujoco.mj_forward(self.model, data)
+
+    def make_data(self, configuration: str = "a") -> mujoco.MjData:
+        """A fresh ``MjData``: the model's first keyframe if it has one (the arm's ``home``,
+        with its controls), else ``qpos0``; the object in ``configuration``; forwarded."""
+        data = mujoco.MjData(self.model)
+        if self.model.nkey > 0:
+            mujoco.mj_resetDataKeyframe(self.model, data, 0)
+        self.set_configuration(data, configuration)
+        return data
+
+    def link_poses(self, configuration: str) -> dict[str, np.ndarray]:
+        """World poses ``{link name: T_world_link (4, 4)}`` of the links' root bodies in
+        configuration ``"a"`` or ``"b"`` (arm at its keyframe; it does not move the object)."""
+        data = self.make_data(configuration)
+        poses = {}
+        for li in self.links:
+            T = np.eye(4)
+            T[:3, :3] = data.xmat[li.body_id].reshape(3, 3)
+            T[:3, 3] = data.xpos[li.body_id]
+            poses[li.name] = T
+        return poses
+
+
+def list_scenes(folder: str | os.PathLike | None = None) -> list[str]:
+    """Names of the scenes in ``folder`` (default :data:`SCENES_DIR`), sorted."""
+    folder = Path(folder) if folder is not None else SCENES_DIR
+    return sorted(p.stem for p in folder.glob("*.xml") if p.name not in NON_SCENE_FILES)
+
+
+def scene_path(name_or_path: str | os.PathLike) -> Path:
+    """Absolute path of a bundled scene name (``"pliers"``) or of an MJCF file path."""
+    text = os.fspath(name_or_path)
+    looks_like_path = (isinstance(name_or_path, os.PathLike) or text.endswith(".xml")
+                       or os.sep in text or (os.altsep is not None and os.altsep in text))
+    if looks_like_path:
+        path = Path(text).expanduser().resolve()
+        if not path.is_file():
+            raise SceneError(f"{path}: no such scene file; give an existing MJCF file or one of "
+                             f"the bundled scenes {list_scenes()}")
+        return path
+    path = (SCENES_DIR / f"{text}.xml").resolve()
+    if text in {Path(f).stem for f in NON_SCENE_FILES} or not path.is_file():
+        raise SceneError(f"no bundled scene named {text!r} in {SCENES_DIR}; the scenes are "
+                         f"{list_scenes()} (or give the path of an MJCF file)")
+    return path
+
+
+def _check_configuration(configuration: str) -> str:
+    if configuration not in CONFIGURATIONS:
+        raise ValueError(f"configuration must be one of {CONFIGURATIONS}, got {configuration!r}")
+    return configuration
+
+
+def _name(model: mujoco.MjModel, obj: mujoco.mjtObj, i: int) -> str:
+    return mujoco.mj_id2name(model, obj, i) or ""
+
+
+def _compile(path: Path) -> mujoco.MjModel:
+    try:
+        return mujoco.MjModel.from_xml_path(str(path))
+    except ValueError as err:
+        msg = str(err).strip()
+        if "opening file" in msg or "resource not found" in msg or "could not open" in msg:
+            fix = (f"file= paths are relative to the scene file's folder {path.parent} (also in "
+                   f"included files); for the bundled assets run `python scenes/make_assets.py`")
+        else:
+            fix = "fix the element MuJoCo names (see scenes/README.md for the conventions)"
+        raise SceneError(f"{path}: MuJoCo could not compile the scene: {msg}. Fix: {fix}") \
+            from err
+
+
+def _object_bodies(model: mujoco.MjModel, root: int) -> list[int]:
+    """``root`` and all its descendants, in body order (parents come before children)."""
+    inside = {root}
+    for b in range(root + 1, model.nbody):
+        if int(model.body_parentid[b]) in inside:
+            inside.add(b)
+    return sorted(inside)
+
+
+def _parse_configurations(model: mujoco.MjModel, path: Path,
+                          joint_ids: dict[str, int]) -> dict[str, dict[str, float]]:
+    """``{"a": {joint: value}, "b": {...}}`` from the ``config_*`` numerics, checked."""
+    values: dict[str, dict[str, float]] = {c: {} for c in CONFIGURATIONS}
+    for i in range(model.nnumeric):
+        name = _name(model, mujoco.mjtObj.mjOBJ_NUMERIC, i)
+        if not name.startswith(CONFIG_PREFIX):
+            continue
+        element = f'<numeric name="{name}">'
+        config, sep, joint = name[len(CONFIG_PREFIX):].partition(":")
+        if not sep or config not in CONFIGURATIONS or not joint:
+            raise SceneError(
+                f"{path}: {element} is not a configuration name; fix: name it "
+                f"config_a:<joint name> or config_b:<joint name>")
+        if joint not in joint_ids:
+            raise SceneError(
+                f"{path}: {element} names the unknown joint {joint!r}; fix: use one of the "
+                f"object's joints {sorted(joint_ids)} (configurations cover the object's "
+                f"joints only, not the arm's or the rail)")
+        size = int(model.numeric_size[i])
+        if size != 1:
+            raise SceneError(f"{path}: {element} has {size} values; fix: give exactly one, "
+                             f'data="VALUE" (radians for a hinge, metres for a slide)')
+        value = float(model.numeric_data[model.numeric_adr[i]])
+        lo, hi = (float(v) for v in model.jnt_range[joint_ids[joint]])
+        if not lo - RANGE_TOLERANCE <= value <= hi + RANGE_TOLERANCE:
+            raise SceneError(
+                f"{path}: {element} value {value:g} lies outside the range [{lo:g}, {hi:g}] of "
+                f"joint {joint!r}; fix: choose a value inside the range or widen the joint's "
+                f"range (radians for a hinge, metres for a slide)")
+        values[config][joint] = value
+    for joint in joint_ids:
+        for config in CONFIGURATIONS:
+            if joint not in values[config]:
+                raise SceneError(
+                    f"{path}: joint {joint!r} has no value in configuration {config!r}; fix: add "
+                    f'<numeric name="{CONFIG_PREFIX}{config}:{joint}" data="VALUE"/> inside '
+                    f"<custom> (both config_a and config_b for every object joint)")
+    return values
+
+
+def load_scene(name_or_path: str | os.PathLike) -> Scene:
+    """Compile a scene and read its object's ground truth.
+
+    Parameters
+    ----------
+    name_or_path : str or path-like
+        A bundled scene name (see :func:`list_scenes`) or the path of an MJCF file.
+
+    Returns
+    -------
+    Scene
+
+    Raises
+    ------
+    SceneError
+        The file is missing or does not compile (MuJoCo's message with the file name), has no
+        body ``"object"``, has an object joint that is not a hinge or slide, two joints on one
+        body or a joint without range, or its configurations name an unknown joint, lie
+        outside a joint's range or miss a joint.
+    """
+    path = scene_path(name_or_path)
+    model = _compile(path)
+    root = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, OBJECT_BODY)
+    if root < 0:
+        raise SceneError(
+            f'{path}: no body named "{OBJECT_BODY}"; fix: name the object\'s root body '
+            f'"{OBJECT_BODY}" (<body name="{OBJECT_BODY}" pos="0 0 0.45"> on the table centre)')
+    if root == 0:
+        raise SceneError(f'{path}: "{OBJECT_BODY}" must be a body of the object, not the world')
+    bodies = _object_bodies(model, root)
+
+    # Joints of the object, checked one by one.
+    joint_ids: dict[str, int] = {}
+    for b in bodies:
+        n_jnt = int(model.body_jntnum[b])
+        body_name = _name(model, mujoco.mjtObj.mjOBJ_BODY, b)
+        if n_jnt > 1:
+            raise SceneError(
+                f'{path}: <body name="{body_name}"> has {n_jnt} joints; fix: one joint per body '
+                f"(nest bodies for compound motions) so that every joint has one child link")
+        for j in range(int(model.body_jntadr[b]), int(model.body_jntadr[b]) + n_jnt):
+            jname = _name(model, mujoco.mjtObj.mjOBJ_JOINT, j)
+            jtype = int(model.jnt_type[j])
+            element = f'<joint name="{jname}"> in <body name="{body_name}">'
+            if jtype not in JOINT_TYPES:
+                raise SceneError(
+                    f'{path}: {element} is a {_MJ_JOINT_NAMES.get(jtype, jtype)} joint; object '
+                    f'joints must be type="hinge" (revolute) or type="slide" (prismatic); fix: '
+                    f"change its type, split it into hinges on nested bodies, or remove it to "
+                    f"fix the body to its parent")
+            if not jname:
+                raise SceneError(f"{path}: {element} has no name; fix: give it a unique name "
+                                 f"(configurations refer to joints by name)")
+            if not bool(model.jnt_limited[j]):
+                raise SceneError(f'{path}: {element} has no range; fix: add range="LO HI" '
+                                 f"(radians for a hinge, metres for a slide)")
+            joint_ids[jname] = j
+
+    # Links: a joint starts a new link, a jointless body joins its parent's link.
+    link_of: dict[int, int] = {}
+    for b in bodies:
+        parent = int(model.body_parentid[b])
+        starts = b == root or int(model.body_jntnum[b]) > 0
+        link_of[b] = b if starts else link_of[parent]
+    links = []
+    for r in sorted(set(link_of.values())):
+        members = tuple(b for b in bodies if link_of[b] == r)
+        links.append(Link(_name(model, mujoco.mjtObj.mjOBJ_BODY, r), members,
+                          tuple(_name(model, mujoco.mjtObj.mjOBJ_BODY, b) for b in members)))
+    for li in links:
+        if not li.name:
+            raise SceneError(f"{path}: a moving body of the object (body id {li.body_id}) has "
+                             f"no name; fix: name every body that carries a joint")
+
+    configs = _parse_configurations(model, path, joint_ids)
+
+    # Axes and anchors at configuration A, from the compiled model.
+    data = mujoco.MjData(model)
+    for name, j in joint_ids.items():
+        data.qpos[model.jnt_qposadr[j]] = configs["a"][name]
+    mujoco.mj_kinematics(model, data)
+    joints = []
+    for name, j in joint_ids.items():
+        b = int(model.jnt_bodyid[j])
+        parent_body = int(model.body_parentid[b])
+        parent = (_name(model, mujoco.mjtObj.mjOBJ_BODY, link_of[parent_body])
+                  if parent_body in link_of else "world")
+        axis = np.array(data.xaxis[j], dtype=float)
+        joints.append(Joint(
+            name=name, type=JOINT_TYPES[int(model.jnt_type[j])], joint_id=j,
+            qpos_adr=int(model.jnt_qposadr[j]), dof_adr=int(model.jnt_dofadr[j]),
+            axis=axis / np.linalg.norm(axis), point=np.array(data.xanchor[j], dtype=float),
+            parent=parent, child=_name(model, mujoco.mjtObj.mjOBJ_BODY, link_of[b]),
+            range=np.array(model.jnt_range[j], dtype=float),
+            value_a=configs["a"][name], value_b=configs["b"][name]))
+    if not joints:
+        log.warning("%s: the object has no joints (one rigid link)", path)
+    scene = Scene(path.stem, path, model, tuple(links), tuple(joints))
+    log.debug("loaded scene %s: %d links, %d joints", path, len(links), len(joints))
+    return scene
+
+
+def physics_warnings(scene: Scene, seconds: float = 1.0, configuration: str = "a") -> dict:
+    """Step ``seconds`` of physics from :meth:`Scene.make_data` and count MuJoCo warnings.
+
+    Returns
+    -------
+    warnings : dict
+        ``{warning name: count}`` of every warning MuJoCo raised (empty when clean), e.g.
+        ``{"mjWARN_BADQACC": 1}``.
+    """
+    model = scene.model
+    data = scene.make_data(configuration)
+    steps = int(round(seconds / model.opt.timestep))
+    mujoco.mj_step(model, data, nstep=steps)
+    out = {}
+    for name, w in mujoco.mjtWarning.__members__.items():
+        if w == mujoco.mjtWarning.mjNWARNING:
+            continue
+        n = int(data.warning[int(w)].number)
+        if n:
+            out[name] = n
+    return out
