@@ -113,8 +113,9 @@ class ArmSpec:
     """joint limits (degrees), one pair per arm joint"""
     shoulder_height: float = PUMA560_SHOULDER_HEIGHT
     """DH frame 0 above the base body's origin, along its z axis (m)"""
-    home: tuple[float, ...] = field(default=(0.0, 0.0, -np.pi / 2, 0.0, 0.0, 0.0))
-    """home configuration of the arm joints (rad), the MJCF's ``home`` keyframe"""
+    home: tuple[float, ...] = field(default=(0.0, 0.72, -3.17, 0.86, 0.25, -2.25))
+    """home configuration of the arm joints (rad), the MJCF's ``home`` keyframe: on the stage,
+    with the rail at 0, the wrist camera looks at the table centre from 0.45 m, 40 degrees up"""
 
 
 PUMA560 = ArmSpec(name="puma560", prefix="puma_", camera="wrist_cam", grasp_site="grasp")
@@ -629,9 +630,9 @@ def actuator_indices(model, kin: ArmKinematics) -> np.ndarray:
 # Views: IK for a camera pose, and collision checks in the MuJoCo scene
 # ----------------------------------------------------------------------------------------------
 
-#: Arm configuration (joint1..joint6) from which view IK starts when no guess is given: the camera
-#: looks down and inwards over the table (solved once for a 40 degree view at 0.45 m).
-PUMA560_VIEW_SEED = (0.0, 0.0, -np.pi / 2, 0.0, 0.0, 0.0)
+#: Arm configuration (joint1..joint6) from which view IK starts when no guess is given: the home
+#: pose, where the camera looks at the table centre from 0.45 m and 40 degrees elevation.
+PUMA560_VIEW_SEED = PUMA560.home
 
 
 def solve_view_ik(kin: ArmKinematics, T_world_camera, q0=None, *, restarts: int = 16,
