@@ -236,3 +236,21 @@ def test_servos_hold_home_and_track_a_step():
         peak = np.maximum(peak, data.qpos - home)
     assert np.abs(data.qpos - (home + 0.2)).max() < 2e-3
     assert peak.max() < 0.2 * 1.1
+
+
+def test_rail_servo_turns_the_arm_on_the_stage(stage):
+    model, kin = stage
+    data = mujoco.MjData(model)
+    qi, ai = qpos_indices(model, kin), actuator_indices(model, kin)
+    q = np.array([0.0, *PUMA560.home])
+    data.qpos[qi], data.ctrl[ai] = q, q
+    data.ctrl[ai[0]] = 1.0  # turn the carriage by 1 rad, arm joints held
+    _simulate(model, data, 2.0)
+    assert abs(data.qpos[qi[0]] - 1.0) < 1e-3
+    assert np.abs(data.qpos[qi[1:]] - q[1:]).max() < 1e-3
+    assert not any(w.number for w in data.warning)
+    # The camera followed the rail: it is where the kinematics put it.
+    mujoco.mj_forward(model, data)
+    cam = model.camera(PUMA560.prefix + PUMA560.camera).id
+    np.testing.assert_allclose(data.cam_xpos[cam], kin.camera_pose(data.qpos[qi])[:3, 3],
+                               atol=1e-9)
