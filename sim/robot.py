@@ -663,7 +663,22 @@ def solve_view_ik(kin: ArmKinematics, T_world_camera, q0=None, *, restarts: int 
     start = np.zeros(kin.nq)
     start[1:] = PUMA560_VIEW_SEED if q0 is None else np.asarray(q0, dtype=float)[1:]
     start[0] = kin.rail_angle_for_azimuth(np.arctan2(rel[1], rel[0]))
-    result = kin.solve_ik(T, "camera", start, locked=(0,), restarts=restarts, seed=seed)
+    # The PUMA's spherical wrist reaches the same orientation with the wrist flipped
+    # (q4 +- pi, -q5, q6 +- pi): try both from the guess before random restarts, so that a guess
+    # whose wrist runs into the joint 4 limit does not send the solver to a far-off branch.
+    flipped = start.copy()
+    flipped[4] += -np.pi if start[4] > 0 else np.pi
+    flipped[5] = -start[5]
+    flipped[6] += -np.pi if start[6] > 0 else np.pi
+    result = None
+    for guess, n_restarts in ((start, 0), (flipped, 0), (start, restarts)):
+        attempt = kin.solve_ik(T, "camera", guess, locked=(0,), restarts=n_restarts, seed=seed)
+        if result is None or attempt.success or (
+                attempt.position_error + attempt.rotation_error
+                < result.position_error + result.rotation_error):
+            result = attempt
+        if result.success:
+            break
     if not result.success:
         free = kin.solve_ik(T, "camera", result.q, restarts=restarts, seed=seed + 1)
         if free.position_error + free.rotation_error < (result.position_error
