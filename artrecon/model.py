@@ -205,6 +205,56 @@ class ArticulatedModel:
             frames[name] = m
         self.frames = frames
 
+    @classmethod
+    def from_segmentation(
+        cls,
+        points_a: np.ndarray,
+        segmentation,
+        joints: list[Joint],
+        colours: np.ndarray | None = None,
+        normals: np.ndarray | None = None,
+        metadata: dict | None = None,
+    ) -> ArticulatedModel:
+        """Model whose links are the segmented matches (configuration A).
+
+        Parameters
+        ----------
+        points_a : (n, 3) float
+            The matches' points in configuration A (as given to segment_links).
+        segmentation : Segmentation
+        joints : list of Joint
+            From estimate_joints; the root is the link that is nobody's child.
+        colours : (n, 3) uint8, optional
+        normals : (n, 3) float, optional
+        metadata : dict, optional
+        """
+        points_a = np.asarray(points_a, dtype=float)
+        labels = np.asarray(segmentation.labels)
+        if points_a.shape != (len(labels), 3):
+            raise ValueError(f"points_a must have shape ({len(labels)}, 3), got {points_a.shape}")
+        links = []
+        for k, transform in enumerate(segmentation.transforms):
+            idx = np.flatnonzero(labels == k)
+            links.append(
+                Link(
+                    points=points_a[idx],
+                    match_indices=idx,
+                    transform_a_to_b=transform,
+                    colours=None if colours is None else np.asarray(colours)[idx],
+                    normals=None if normals is None else np.asarray(normals)[idx],
+                    name=f"link_{k}",
+                )
+            )
+        children = {j.child for j in joints}
+        roots = [k for k in range(len(links)) if k not in children]
+        return cls(
+            links=links,
+            joints=list(joints),
+            root=roots[0] if roots else 0,
+            scale_a_to_b=float(segmentation.scale),
+            metadata=dict(metadata or {}),
+        )
+
     def parent_of(self, link: int) -> int | None:
         for j in self.joints:
             if j.child == link:

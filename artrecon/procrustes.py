@@ -34,7 +34,7 @@ def _as_points(name: str, points: np.ndarray) -> np.ndarray:
     return points
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Similarity:
     """A similarity transform p' = scale * rotation @ p + translation.
 
@@ -65,6 +65,19 @@ class Similarity:
         object.__setattr__(self, "rotation", rotation)
         object.__setattr__(self, "translation", translation)
         object.__setattr__(self, "scale", float(self.scale))
+
+    def __eq__(self, other: object) -> bool:
+        """Exact equality of rotation, translation and scale (use np.allclose on .matrix for
+        approximate comparison)."""
+        if not isinstance(other, Similarity):
+            return NotImplemented
+        return (
+            np.array_equal(self.rotation, other.rotation)
+            and np.array_equal(self.translation, other.translation)
+            and self.scale == other.scale
+        )
+
+    __hash__ = None  # mutable-looking numpy fields: not hashable
 
     @classmethod
     def identity(cls) -> Similarity:

@@ -75,6 +75,11 @@ REVOLUTE_MIN_ANGLE = np.deg2rad(4.0)
 #: the joint, so the gap is allowed to be generous.
 ADJACENCY_DISTANCE = 0.5
 
+#: The gap between two links is the k-th smallest nearest-neighbour distance, not the smallest:
+#: one or two matches wrongly assigned to a link (possible when two links move almost alike) must
+#: not make far-apart links look adjacent.
+ADJACENCY_ROBUST_K = 3
+
 #: Weight of the "is this a single joint" misfit in the kinematic-tree edge cost (see
 #: joints.single_joint_misfit): a pair whose relative motion is a screw or a rotation+slide is not
 #: joined directly when a cleaner pair exists.

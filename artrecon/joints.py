@@ -1,0 +1,316 @@
+"""Joints between rigid links: kinematic tree, joint type, axis and joint-state change.
+
+Input: the matches and their `Segmentation` (per link a similarity A -> B, sharing one scale).
+For a parent P and child C the child's motion relative to the parent, in the model frame
+(configuration A), is T_rel = T_P^-1 T_C: the parent's own motion (and the change of SfM frame)
+cancels. Then, as in the method:
+
+- type: revolute when the rotation angle of T_rel exceeds `revolute_min_angle`, else prismatic;
+- revolute axis: direction u = the rotation's fixed vector (eigenvector of eigenvalue 1, via the
+  rotation vector); point: the rotation centre in the plane normal to u, from t = (I - R) p solved
+  in closed form p = (t_perp + cot(theta/2) u x t_perp) / 2 (well conditioned for any theta above
+  the threshold), moved along the axis next to the child's centroid;
+- prismatic axis: direction of the child's mean displacement, through the smaller link's centroid;
+- state: configuration A is the zero; state_b = the angle (rad) or displacement (model units).
+
+Links are joined into a tree rooted at the largest link: a minimum spanning tree over the pairs of
+spatially adjacent links (closest points in configuration A within `adjacency_distance` x scene
+size), weighted by their gap plus how far their relative motion is from a single joint.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from artrecon import tolerances as tol
+from artrecon.errors import DegenerateError, ReconstructionError
+from artrecon.model import Joint
+from artrecon.procrustes import Similarity, rotation_angle
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "JointConfig",
+    "KinematicTree",
+    "build_kinematic_tree",
+    "estimate_joints",
+    "joint_from_motion",
+    "relative_motion",
+    "single_joint_misfit",
+]
+
+
+@dataclass(frozen=True)
+class JointConfig:
+    """Joint estimation settings; lengths are fractions of the scene size of configuration A."""
+
+    revolute_min_angle: float = tol.REVOLUTE_MIN_ANGLE
+    """Rotation angle (rad) of the relative motion above which a joint is revolute."""
+    adjacency_distance: float = tol.ADJACENCY_DISTANCE
+    """Links whose closest points are nearer than this x scene size may share a joint."""
+    misfit_weight: float = tol.MISFIT_WEIGHT
+    """Weight of the single-joint misfit (relative to scene size) in the tree edge cost."""
+
+
+@dataclass
+class KinematicTree:
+    """Which link is attached to which.
+
+    Attributes
+    ----------
+    root : int
+        The largest link.
+    parents : (n_links,) int
+        Parent of each link, -1 for the root.
+    edges : list of (parent, child)
+        In breadth-first order from the root.
+    gaps : (n_links, n_links) float
+        Closest-point distance between every two links (configuration A, model units).
+    """
+
+    root: int
+    parents: np.ndarray
+    edges: list[tuple[int, int]] = field(default_factory=list)
+    gaps: np.ndarray | None = None
+
+    def children(self, link: int) -> list[int]:
+        return [c for p, c in self.edges if p == link]
+
+
+def relative_motion(t_parent: Similarity, t_child: Similarity) -> Similarity:
+    """Motion of the child relative to the parent in the model frame: T_parent^-1 T_child."""
+    return t_parent.inverse() @ t_child
+
+
+def _axis_angle(rotation: np.ndarray) -> tuple[np.ndarray, float]:
+    rotvec = Rotation.from_matrix(rotation).as_rotvec()
+    theta = float(np.linalg.norm(rotvec))
+    if theta == 0.0:
+        return np.array([0.0, 0.0, 1.0]), 0.0
+    return rotvec / theta, theta
+
+
+def single_joint_misfit(
+    motion: Similarity, child_points: np.ndarray, revolute_min_angle: float
+) -> tuple[str, float]:
+    """Classify a relative motion and measure how far it is from one pure joint.
+
+    Parameters
+    ----------
+    motion : Similarity
+        Relative motion of the child (model frame).
+    child_points : (n, 3) float
+        The child's points, configuration A.
+    revolute_min_angle : float
+        Rotation angle (rad) above which the motion is revolute.
+
+    Returns
+    -------
+    type : str
+        "revolute" or "prismatic".
+    misfit : float
+        Model units. Revolute: |slide along the axis| (a screw motion is not one joint).
+        Prismatic: RMS displacement of the child's points caused by the residual rotation.
+    """
+    u, theta = _axis_angle(motion.rotation)
+    if theta >= revolute_min_angle:
+        return "revolute", abs(float(motion.translation @ u))
+    centred = child_points - child_points.mean(axis=0)
+    rot_disp = centred @ (motion.scale * motion.rotation - np.eye(3)).T
+    return "prismatic", float(np.sqrt(np.mean(np.einsum("ij,ij->i", rot_disp, rot_disp))))
+
+
+def joint_from_motion(
+    motion: Similarity,
+    parent: int,
+    child: int,
+    parent_points: np.ndarray,
+    child_points: np.ndarray,
+    config: JointConfig = JointConfig(),  # noqa: B008 (frozen, immutable)
+) -> Joint:
+    """Joint type, axis and state change from the child's motion relative to its parent.
+
+    Parameters
+    ----------
+    motion : Similarity
+        T_parent^-1 T_child (model frame).
+    parent, child : int
+        Link indices.
+    parent_points, child_points : (n, 3) float
+        Configuration-A points of the two links (centroids and sizes).
+    config : JointConfig
+
+    Returns
+    -------
+    Joint
+    """
+    kind, misfit = single_joint_misfit(motion, child_points, config.revolute_min_angle)
+    c_child = child_points.mean(axis=0)
+    if kind == "revolute":
+        u, theta = _axis_angle(motion.rotation)
+        t = motion.translation
+        t_perp = t - (t @ u) * u
+        # Rotation about the axis through p: t = (I - R) p. In the plane normal to u this inverts
+        # in closed form; cot(theta/2) is bounded because theta >= revolute_min_angle.
+        p = 0.5 * (t_perp + np.cross(u, t_perp) / np.tan(0.5 * theta))
+        p = p + ((c_child - p) @ u) * u
+        return Joint("revolute", u, p, parent, child, 0.0, theta, relative_transform=motion,
+                     residual=misfit)
+    displacement = motion.apply(c_child) - c_child
+    dist = float(np.linalg.norm(displacement))
+    if dist == 0.0:
+        raise DegenerateError(
+            f"links {parent} and {child} did not move relative to each other; they are one rigid "
+            "body. Re-run the segmentation (or move the joint between the captures)."
+        )
+    smaller = child_points if len(child_points) <= len(parent_points) else parent_points
+    return Joint("prismatic", displacement / dist, smaller.mean(axis=0), parent, child, 0.0, dist,
+                 relative_transform=motion, residual=misfit)
+
+
+def _link_points(points_a: np.ndarray, segmentation) -> list[np.ndarray]:
+    return [points_a[segmentation.labels == k] for k in range(segmentation.n_links)]
+
+
+def build_kinematic_tree(
+    points_a: np.ndarray,
+    segmentation,
+    config: JointConfig = JointConfig(),  # noqa: B008 (frozen, immutable)
+) -> KinematicTree:
+    """Kinematic tree over the links, rooted at the largest link.
+
+    Parameters
+    ----------
+    points_a : (n, 3) float
+        The matches' points in configuration A (those given to segment_links).
+    segmentation : Segmentation
+    config : JointConfig
+
+    Returns
+    -------
+    KinematicTree
+
+    Raises
+    ------
+    SingleBodyError-like DegenerateError
+        Fewer than two links.
+    ReconstructionError
+        Some link is not adjacent to any other (the adjacency graph is disconnected).
+    """
+    points_a = _check_points(points_a, segmentation)
+    n_links = segmentation.n_links
+    if n_links < 2:
+        raise DegenerateError(
+            f"build_kinematic_tree needs at least 2 links, the segmentation has {n_links}: the "
+            "object moved as one rigid body. Move a joint between the two captures."
+        )
+    pts = _link_points(points_a, segmentation)
+    size = tol.scene_size(points_a[segmentation.labels >= 0])
+    trees = [cKDTree(p) for p in pts]
+    gaps = np.zeros((n_links, n_links))
+    cost = np.zeros((n_links, n_links))
+    for i in range(n_links):
+        for j in range(i + 1, n_links):
+            gaps[i, j] = gaps[j, i] = _robust_gap(trees[j], pts[i], trees[i], pts[j])
+            if gaps[i, j] > config.adjacency_distance * size:
+                continue
+            t = segmentation.transforms
+            # Misfit in both directions (which link is the child is not known yet); the smaller.
+            m_ij = single_joint_misfit(relative_motion(t[i], t[j]), pts[j],
+                                       config.revolute_min_angle)[1]
+            m_ji = single_joint_misfit(relative_motion(t[j], t[i]), pts[i],
+                                       config.revolute_min_angle)[1]
+            w = gaps[i, j] / size + config.misfit_weight * min(m_ij, m_ji) / size
+            cost[i, j] = cost[j, i] = w + 1e-12  # csgraph treats 0 as "no edge"
+    n_comp, comp = connected_components(cost, directed=False)
+    if n_comp > 1:
+        lonely = [int(k) for k in range(n_links) if np.sum(comp == comp[k]) < n_links]
+        raise ReconstructionError(
+            f"build_kinematic_tree: the {n_links} links form {n_comp} groups that are not within "
+            f"{config.adjacency_distance:g} x scene size of each other (links {lonely}; closest "
+            f"gaps {np.round(gaps / size, 3).tolist()} x scene size). A link far from every other "
+            "is not attached by a joint: check the segmentation, or raise "
+            "JointConfig.adjacency_distance."
+        )
+    mst = minimum_spanning_tree(cost)
+    mst = mst + mst.T
+    sizes = segmentation.sizes
+    root = int(np.argmax(sizes))
+    order, preds = breadth_first_order(mst, root, directed=False, return_predecessors=True)
+    parents = np.where(preds < 0, -1, preds).astype(np.int64)
+    parents[root] = -1
+    edges = [(int(parents[c]), int(c)) for c in order if c != root]
+    return KinematicTree(root=root, parents=parents, edges=edges, gaps=gaps)
+
+
+def _robust_gap(tree_j, pts_i, tree_i, pts_j) -> float:
+    """Closest-point distance between two links, ignoring a few stray points (the k-th smallest
+    nearest-neighbour distance, k = tolerances.ADJACENCY_ROBUST_K, in both directions)."""
+    gaps = []
+    for tree, pts in ((tree_j, pts_i), (tree_i, pts_j)):
+        d, _ = tree.query(pts, k=1)
+        k = min(tol.ADJACENCY_ROBUST_K, len(d)) - 1
+        gaps.append(float(np.partition(d, k)[k]))
+    return max(gaps)
+
+
+def _check_points(points_a, segmentation) -> np.ndarray:
+    points_a = np.asarray(points_a, dtype=float)
+    if points_a.ndim != 2 or points_a.shape[1] != 3:
+        raise ValueError(f"points_a must have shape (n, 3), got {points_a.shape}")
+    if len(segmentation.labels) != len(points_a):
+        raise ValueError(
+            f"segmentation has {len(segmentation.labels)} labels but points_a has "
+            f"{len(points_a)} points; pass the matches given to segment_links"
+        )
+    return points_a
+
+
+def estimate_joints(
+    points_a: np.ndarray,
+    points_b: np.ndarray,
+    segmentation,
+    config: JointConfig = JointConfig(),  # noqa: B008 (frozen, immutable)
+    tree: KinematicTree | None = None,
+) -> list[Joint]:
+    """One joint per non-root link of the kinematic tree (breadth-first from the root).
+
+    Parameters
+    ----------
+    points_a, points_b : (n, 3) float
+        The matches given to segment_links (points_b is checked for shape only: the link
+        transforms already carry configuration B).
+    segmentation : Segmentation
+    config : JointConfig
+    tree : KinematicTree, optional
+        Computed with build_kinematic_tree when not given.
+
+    Returns
+    -------
+    list of Joint
+        joint.parent / joint.child index segmentation's links; the root is the largest link.
+    """
+    points_a = _check_points(points_a, segmentation)
+    points_b = np.asarray(points_b, dtype=float)
+    if points_b.shape != points_a.shape:
+        raise ValueError(f"points_b must have shape {points_a.shape}, got {points_b.shape}")
+    if tree is None:
+        tree = build_kinematic_tree(points_a, segmentation, config)
+    pts = _link_points(points_a, segmentation)
+    joints = []
+    for parent, child in tree.edges:
+        motion = relative_motion(segmentation.transforms[parent], segmentation.transforms[child])
+        joint = joint_from_motion(motion, parent, child, pts[parent], pts[child], config)
+        log.info(
+            "joint %s: %s, %s %.4g, residual %.3g, angle of relative rotation %.2f deg",
+            joint.name, joint.type, "angle" if joint.type == "revolute" else "displacement",
+            joint.state_b, joint.residual, np.degrees(rotation_angle(motion.rotation)),
+        )
+        joints.append(joint)
+    return joints

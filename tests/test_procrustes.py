@@ -1,0 +1,162 @@
+"""Procrustes: known random transforms are recovered exactly, degenerate input raises."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from artrecon.errors import DegenerateError
+from artrecon.procrustes import (
+    Similarity,
+    batch_similarity_transforms,
+    rigid_transform,
+    rotation_angle,
+    shared_scale_transforms,
+    similarity_transform,
+)
+
+
+def random_similarity(rng, scale=None):
+    return Similarity(
+        Rotation.random(random_state=int(rng.integers(2**31))).as_matrix(),
+        rng.uniform(-10, 10, 3),
+        float(np.exp(rng.uniform(-2, 2))) if scale is None else scale,
+    )
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+@pytest.mark.parametrize("with_scale", [False, True])
+@pytest.mark.parametrize("n", [3, 4, 50])
+def test_recovers_known_transform_every_option(weighted, with_scale, n):
+    rng = np.random.default_rng(n + 10 * weighted + 100 * with_scale)
+    truth = random_similarity(rng, scale=None if with_scale else 1.0)
+    src = rng.normal(size=(n, 3))
+    weights = rng.uniform(0.1, 2.0, n) if weighted else None
+    est = similarity_transform(src, truth.apply(src), weights=weights, with_scale=with_scale)
+    np.testing.assert_allclose(est.matrix, truth.matrix, atol=1e-9)
+    assert np.linalg.det(est.rotation) == pytest.approx(1.0, abs=1e-12)
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(3, 40), spread=st.floats(1e-2, 1e2))
+def test_property_exact_without_noise(seed, n, spread):
+    rng = np.random.default_rng(seed)
+    truth = random_similarity(rng)
+    src = spread * rng.normal(size=(n, 3))
+    est = similarity_transform(src, truth.apply(src))
+    assert rotation_angle(est.rotation.T @ truth.rotation) < 1e-9
+    assert abs(est.scale / truth.scale - 1) < 1e-9
+    np.testing.assert_allclose(est.apply(src), truth.apply(src), atol=1e-9 * spread * truth.scale)
+
+
+def test_zero_weights_ignore_wrong_pairs_exactly():
+    rng = np.random.default_rng(3)
+    truth = random_similarity(rng)
+    src = rng.normal(size=(20, 3))
+    dst = truth.apply(src)
+    dst[:5] += rng.normal(size=(5, 3)) * 10  # wrong pairs
+    weights = np.r_[np.zeros(5), np.ones(15)]
+    est = similarity_transform(src, dst, weights=weights)
+    np.testing.assert_allclose(est.matrix, truth.matrix, atol=1e-9)
+    unweighted = similarity_transform(src, dst)
+    assert np.abs(unweighted.matrix - truth.matrix).max() > 1e-2
+
+
+def test_mirrored_data_never_gives_a_reflection():
+    rng = np.random.default_rng(4)
+    src = rng.normal(size=(30, 3))
+    dst = src * np.array([1.0, 1.0, -1.0])  # a mirror image: no proper rotation maps it exactly
+    est = similarity_transform(src, dst)
+    assert np.linalg.det(est.rotation) == pytest.approx(1.0, abs=1e-12)
+    np.testing.assert_allclose(est.rotation @ est.rotation.T, np.eye(3), atol=1e-12)
+
+
+def test_rigid_with_known_scale():
+    rng = np.random.default_rng(5)
+    truth = random_similarity(rng, scale=2.7)
+    src = rng.normal(size=(10, 3))
+    est = rigid_transform(src, truth.apply(src), scale=2.7)
+    assert est.scale == 2.7
+    np.testing.assert_allclose(est.matrix, truth.matrix, atol=1e-9)
+
+
+def test_shared_scale_exact_and_helps_the_small_group():
+    rng = np.random.default_rng(6)
+    s = 1.9
+    t1, t2 = random_similarity(rng, s), random_similarity(rng, s)
+    big = rng.normal(size=(400, 3))
+    small = 0.1 * rng.normal(size=(6, 3))  # small, few points: its own scale is poor with noise
+    exact = shared_scale_transforms([(big, t1.apply(big)), (small, t2.apply(small))])
+    for est, truth in zip(exact, (t1, t2), strict=True):
+        np.testing.assert_allclose(est.matrix, truth.matrix, atol=1e-9)
+    errs_shared, errs_alone = [], []
+    for trial in range(20):
+        r = np.random.default_rng(100 + trial)
+        db = t1.apply(big) + 0.01 * r.normal(size=big.shape)
+        ds = t2.apply(small) + 0.01 * r.normal(size=small.shape)
+        shared = shared_scale_transforms([(big, db), (small, ds)])
+        errs_shared.append(abs(shared[1].scale - s))
+        errs_alone.append(abs(similarity_transform(small, ds).scale - s))
+    assert np.mean(errs_shared) < 0.2 * np.mean(errs_alone)
+
+
+def test_batch_equals_single():
+    rng = np.random.default_rng(7)
+    src = rng.normal(size=(25, 3, 3))
+    dst = rng.normal(size=(25, 3, 3))
+    rot, trans, scales = batch_similarity_transforms(src, dst)
+    rot_f, trans_f, scales_f = batch_similarity_transforms(src, dst, scale=1.5)
+    for i in range(25):
+        single = similarity_transform(src[i], dst[i])
+        np.testing.assert_allclose(rot[i], single.rotation, atol=1e-9)
+        np.testing.assert_allclose(trans[i], single.translation, atol=1e-9)
+        assert scales[i] == pytest.approx(single.scale, rel=1e-9)
+        fixed = rigid_transform(src[i], dst[i], scale=1.5)
+        np.testing.assert_allclose(rot_f[i], fixed.rotation, atol=1e-9)
+        np.testing.assert_allclose(trans_f[i], fixed.translation, atol=1e-9)
+
+
+def test_similarity_algebra():
+    rng = np.random.default_rng(8)
+    a, b = random_similarity(rng), random_similarity(rng)
+    p = rng.normal(size=(7, 3))
+    np.testing.assert_allclose((a @ b).apply(p), a.apply(b.apply(p)), atol=1e-9)
+    np.testing.assert_allclose(a.inverse().apply(a.apply(p)), p, atol=1e-9)
+    np.testing.assert_allclose(Similarity.from_matrix(a.matrix).matrix, a.matrix, atol=1e-12)
+    np.testing.assert_allclose(a.apply(p[0]), a.apply(p[:1])[0])
+    assert Similarity.from_dict(a.to_dict()) == a  # exact round trip
+    assert a != b
+
+
+def test_rotation_angle_accurate_near_zero_and_pi():
+    for angle in (1e-10, 1e-4, 1.0, np.pi - 1e-6):
+        r = Rotation.from_rotvec(angle * np.array([0.0, 0.6, 0.8])).as_matrix()
+        assert rotation_angle(r) == pytest.approx(angle, rel=1e-6)
+
+
+def test_fewer_than_three_pairs_raises():
+    src = np.array([[0.0, 0, 0], [1, 0, 0]])
+    with pytest.raises(DegenerateError, match="at least 3"):
+        similarity_transform(src, src)
+    with pytest.raises(DegenerateError, match="at least 3"):
+        similarity_transform(np.eye(3), np.eye(3), weights=np.array([1.0, 1.0, 0.0]))
+
+
+def test_collinear_points_raise():
+    src = np.outer(np.arange(10.0), [1.0, 2.0, 3.0])
+    with pytest.raises(DegenerateError, match="collinear"):
+        similarity_transform(src, src + 1)
+    with pytest.raises(DegenerateError, match="collinear"):
+        rigid_transform(src, src + 1)
+
+
+def test_shapes_are_validated():
+    with pytest.raises(ValueError, match=r"\(n, 3\)"):
+        similarity_transform(np.zeros((4, 2)), np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="same shape"):
+        similarity_transform(np.zeros((4, 3)), np.zeros((5, 3)))
+    with pytest.raises(ValueError, match="weights"):
+        similarity_transform(np.eye(3), np.eye(3), weights=np.ones(2))
+    with pytest.raises(ValueError, match="scale"):
+        Similarity(np.eye(3), np.zeros(3), -1.0)

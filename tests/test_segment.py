@@ -1,0 +1,114 @@
+"""Link segmentation: exact on clean data despite outliers, deterministic, clear errors."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from synthetic import make_object, match_links
+
+from artrecon.errors import DegenerateError, NoMotionError, SingleBodyError
+from artrecon.procrustes import Similarity
+from artrecon.segment import SegmentationConfig, adaptive_hypotheses, segment_links
+
+
+def _mapped(seg, obj):
+    mapping = match_links(seg.labels, obj.labels, len(obj.link_motions))
+    return np.array([mapping.get(k, -2) if k >= 0 else -1 for k in seg.labels])
+
+
+@pytest.mark.parametrize("structure", ["pair", "chain", "star"])
+@pytest.mark.parametrize("outliers", [0.0, 0.5])
+def test_noise_free_segmentation_is_exact(structure, outliers):
+    obj = make_object(11, structure, ("revolute", "prismatic"), 60, 0.0, outliers)
+    seg = segment_links(obj.points_a, obj.points_b, seed=1)
+    assert seg.n_links == len(obj.link_motions)
+    np.testing.assert_array_equal(_mapped(seg, obj), obj.labels)
+    mapping = match_links(seg.labels, obj.labels, seg.n_links)
+    for k, t in enumerate(seg.transforms):
+        np.testing.assert_allclose(t.matrix, obj.link_motions[mapping[k]].matrix, atol=1e-9)
+    assert seg.scale == pytest.approx(obj.frame_b.scale, rel=1e-12)
+    assert list(seg.sizes) == sorted(seg.sizes, reverse=True)  # link 0 is the largest
+
+
+def test_noisy_segmentation_labels_and_shared_scale():
+    obj = make_object(12, "chain", ("revolute", "revolute"), 60, 0.003, 0.4)
+    cfg = SegmentationConfig(inlier_threshold=0.04)
+    seg = segment_links(obj.points_a, obj.points_b, cfg, seed=2)
+    pred = _mapped(seg, obj)
+    inl = obj.labels >= 0
+    assert np.mean(pred[inl] == obj.labels[inl]) > 0.97  # near the joints a few may swap
+    assert np.mean(pred[~inl] == -1) > 0.97
+    assert abs(seg.scale / obj.frame_b.scale - 1) < 0.01
+    assert len({t.scale for t in seg.transforms}) == 1
+
+
+def test_same_seed_same_result_and_every_match_labelled():
+    obj = make_object(13, "star", ("revolute", "revolute"), 50, 0.002, 0.3)
+    a = segment_links(obj.points_a, obj.points_b, seed=5)
+    b = segment_links(obj.points_a, obj.points_b, seed=5)
+    np.testing.assert_array_equal(a.labels, b.labels)
+    assert all(x == y for x, y in zip(a.transforms, b.transforms, strict=True))
+    assert a.labels.shape == (len(obj.points_a),)
+    assert set(np.unique(a.labels)) <= set(range(-1, a.n_links))
+
+
+def test_tiny_group_becomes_outliers():
+    obj = make_object(14, "pair", ("revolute",), 100, 0.0, 0.0)
+    rng = np.random.default_rng(0)
+    tiny_a = rng.uniform(-0.3, 0.3, (5, 3)) + [0.0, 0.0, 0.5]
+    other = Similarity(Rotation.from_rotvec([0.0, 1.0, 0.0]).as_matrix(), [3.0, 0, 0], 1.0)
+    pa = np.vstack([obj.points_a, tiny_a])
+    pb = np.vstack([obj.points_b, (obj.frame_b @ other).apply(tiny_a)])
+    seg = segment_links(pa, pb, seed=0)
+    assert seg.n_links == 2
+    assert np.all(seg.labels[-5:] == -1)
+
+
+def test_scale_invariance_of_thresholds():
+    obj = make_object(15, "pair", ("prismatic",), 60, 0.002, 0.3)
+    base = segment_links(obj.points_a, obj.points_b, seed=3)
+    scaled = segment_links(1000 * obj.points_a, 1e-3 * obj.points_b, seed=3)
+    np.testing.assert_array_equal(base.labels, scaled.labels)
+
+
+def test_adaptive_hypotheses():
+    assert adaptive_hypotheses(0.5, 0.999) == pytest.approx(math.log(0.001) / math.log(0.875))
+    assert adaptive_hypotheses(1.0, 0.999) == 1.0
+    assert adaptive_hypotheses(0.0, 0.999) == math.inf
+
+
+def test_fewer_than_three_matches():
+    with pytest.raises(DegenerateError, match="at least 3"):
+        segment_links(np.zeros((2, 3)), np.zeros((2, 3)))
+
+
+def test_collinear_matches():
+    pa = np.outer(np.linspace(0, 1, 50), [1.0, 0.5, 0.2])
+    with pytest.raises(DegenerateError, match="collinear"):
+        segment_links(pa, pa + 1.0)
+
+
+def test_no_motion():
+    obj = make_object(16, "pair", ("revolute",), 60, 0.0, 0.0)
+    with pytest.raises(NoMotionError, match="identical"):
+        segment_links(obj.points_a, obj.points_a.copy())
+
+
+def test_one_rigid_body():
+    obj = make_object(17, "pair", ("revolute",), 60, 0.001, 0.2)
+    with pytest.raises(SingleBodyError, match="one\\s+rigid body"):
+        segment_links(obj.points_a, obj.frame_b.apply(obj.points_a))
+
+
+def test_only_wrong_matches():
+    rng = np.random.default_rng(1)
+    with pytest.raises(DegenerateError, match="mostly wrong"):
+        segment_links(rng.normal(size=(300, 3)), rng.normal(size=(300, 3)))
+
+
+def test_shapes_validated():
+    with pytest.raises(ValueError, match=r"\(n, 3\)"):
+        segment_links(np.zeros((10, 2)), np.zeros((10, 2)))
+    with pytest.raises(ValueError, match="shape of points_a"):
+        segment_links(np.zeros((10, 3)), np.zeros((9, 3)))
