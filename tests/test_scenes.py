@@ -1,0 +1,459 @@
+"""Scenes, in the style of MuJoCo Menagerie's tests: every scene compiles, steps a second of physics
+without MuJoCo warnings, and its ground truth matches what its XML says (read here independently
+with xml.etree). Malformed scenes raise SceneError naming file, element and fix. The generated
+assets are checked: textures rich and non-repeating, UV regions disjoint, texel size fine enough,
+and scenes/make_assets.py reproduces the committed files exactly."""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import cv2
+import mujoco
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from sim.scene import (
+    SCENES_DIR,
+    SceneError,
+    list_scenes,
+    load_scene,
+    physics_warnings,
+    scene_path,
+)
+
+BUNDLED = ("drawer", "pliers", "truck")
+SCENES = list_scenes()
+ASSETS = SCENES_DIR / "assets"
+
+#: Object parts must show at least one texel per image pixel at the capture distance:
+#: fx = 554 px at 0.4 m is 0.72 mm per pixel at the image centre, a 20 cm object filling half
+#: the image 1.4 mm per pixel.
+MAX_OBJECT_TEXEL = 1.4e-3
+#: Tiles (texels) compared with each other, on the texture's detail (minus a Gaussian blur of
+#: sigma DETAIL_SIGMA, so that two tiles inside smooth colour ramps do not look alike), and the
+#: normalised cross-correlation above which two tiles are a repeat: a copy scores 1, distinct
+#: 64-texel tiles of the generated textures score at most about 0.35.
+TILE = 64
+DETAIL_SIGMA = 8.0
+MAX_TILE_CORRELATION = 0.7
+#: Shifts (texels) beyond the size of the largest blob, where the detail of a non-repeating
+#: texture no longer correlates with itself, and the highest autocorrelation allowed there
+#: (a tiled texture reaches about 1 at its period).
+MIN_REPEAT_SHIFT = 32
+MAX_AUTOCORRELATION = 0.3
+#: A blank tile (detail std below this many grey levels) is a surface without texture.
+MIN_TILE_STD = 4.0
+#: Drift allowed when a configuration is left to itself for a second (joint friction holds it).
+HOLD_TOL = {"revolute": np.deg2rad(0.5), "prismatic": 1e-3}
+
+
+def test_bundled_scenes_are_listed():
+    assert set(BUNDLED) <= set(SCENES)
+    assert "stage" not in SCENES
+
+
+def test_scenes_readme_mentions_every_scene():
+    text = (SCENES_DIR / "README.md").read_text()
+    for name in SCENES:
+        assert f"{name}.xml" in text, f"scenes/README.md does not describe {name}.xml"
+
+
+# ------------------------------------------------------------------------------------------
+# Compile and step
+# ------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", SCENES)
+@pytest.mark.parametrize("configuration", ["a", "b"])
+def test_scene_steps_one_second_without_warnings(name, configuration):
+    scene = load_scene(name)
+    model = scene.model
+    data = scene.make_data(configuration)
+    mujoco.mj_step(model, data, nstep=int(round(1.0 / model.opt.timestep)))
+    counts = {i: int(data.warning[i].number) for i in range(len(data.warning))}
+    assert not any(counts.values()), f"{name}: MuJoCo warnings {counts}"
+    assert physics_warnings(scene, 1.0, configuration) == {}
+    assert np.all(np.isfinite(data.qpos))
+
+
+@pytest.mark.parametrize("name", SCENES)
+@pytest.mark.parametrize("configuration", ["a", "b"])
+def test_configuration_holds_for_one_second(name, configuration):
+    """Left alone, the object stays in its configuration (friction holds gravity loads)."""
+    scene = load_scene(name)
+    data = scene.make_data(configuration)
+    mujoco.mj_step(scene.model, data, nstep=int(round(1.0 / scene.model.opt.timestep)))
+    for j in scene.joints:
+        drift = abs(data.qpos[j.qpos_adr] - j.value(configuration))
+        assert drift < HOLD_TOL[j.type], f"{name}: {j.name} drifted by {drift:g}"
+
+
+@pytest.mark.parametrize("name", SCENES)
+@pytest.mark.parametrize("configuration", ["a", "b"])
+def test_object_does_not_penetrate_anything(name, configuration):
+    scene = load_scene(name)
+    model = scene.model
+    data = scene.make_data(configuration)
+    mujoco.mj_collision(model, data)
+    object_bodies = {b for li in scene.links for b in li.body_ids}
+    for c in data.contact[: data.ncon]:
+        bodies = {int(model.geom_bodyid[c.geom1]), int(model.geom_bodyid[c.geom2])}
+        if bodies & object_bodies:
+            names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g)
+                     for g in (c.geom1, c.geom2)]
+            assert c.dist > -1e-3, f"{name}: {names} penetrate by {-c.dist * 1000:.1f} mm"
+
+
+# ------------------------------------------------------------------------------------------
+# Ground truth against the XML, read independently
+# ------------------------------------------------------------------------------------------
+
+
+def _floats(text: str | None, default: str) -> np.ndarray:
+    return np.array([float(v) for v in (text if text is not None else default).split()])
+
+
+def _body_transform(el: ET.Element) -> np.ndarray:
+    """T_parent_body of an MJCF body given by pos and quat (the only forms our parser knows)."""
+    unknown = {"euler", "axisangle", "xyaxes", "zaxis"} & set(el.attrib)
+    assert not unknown, f"test parser: body {el.get('name')} uses {unknown}; extend the test"
+    T = np.eye(4)
+    w, x, y, z = _floats(el.get("quat"), "1 0 0 0")
+    T[:3, :3] = Rotation.from_quat([x, y, z, w]).as_matrix()
+    T[:3, 3] = _floats(el.get("pos"), "0 0 0")
+    return T
+
+
+def _xml_ground_truth(path: Path) -> dict:
+    """Joints of the object from the XML alone: type, world axis and anchor at config A,
+    parent and child body, range, both configuration values."""
+    root = ET.parse(path).getroot()
+    configs = {}
+    for num in root.iter("numeric"):
+        m = re.fullmatch(r"config_([ab]):(.+)", num.get("name", ""))
+        if m:
+            configs[(m.group(1), m.group(2))] = float(num.get("data"))
+    obj = next(b for b in root.iter("body") if b.get("name") == "object")
+    out = {}
+
+    def walk(body: ET.Element, T_world_parent: np.ndarray, parent_name: str, link: str):
+        T = T_world_parent @ _body_transform(body)
+        joints = body.findall("joint")
+        this_link = body.get("name") if joints else link
+        for jel in joints:
+            name = jel.get("name")
+            axis = _floats(jel.get("axis"), "0 0 1")
+            pos = _floats(jel.get("pos"), "0 0 0")
+            jtype = jel.get("type", "hinge")
+            out[name] = dict(
+                type={"hinge": "revolute", "slide": "prismatic"}[jtype],
+                axis=T[:3, :3] @ axis / np.linalg.norm(axis), point=T[:3, :3] @ pos + T[:3, 3],
+                parent=link, child=this_link, range=_floats(jel.get("range"), "nan nan"),
+                a=configs[("a", name)], b=configs[("b", name)])
+            # Descendants see this joint at its configuration-A value.
+            q = configs[("a", name)]
+            M = np.eye(4)
+            if jtype == "hinge":
+                R = Rotation.from_rotvec(axis / np.linalg.norm(axis) * q).as_matrix()
+                M[:3, :3] = R
+                M[:3, 3] = pos - R @ pos
+            else:
+                M[:3, 3] = axis / np.linalg.norm(axis) * q
+            T = T @ M
+        for child in body.findall("body"):
+            walk(child, T, body.get("name"), this_link)
+
+    walk(obj, np.eye(4), "world", "object")
+    return out
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_ground_truth_matches_xml(name):
+    scene = load_scene(name)
+    expected = _xml_ground_truth(scene.path)
+    assert sorted(j.name for j in scene.joints) == sorted(expected)
+    assert len(scene.joints) >= 1
+    for j in scene.joints:
+        e = expected[j.name]
+        assert j.type == e["type"]
+        np.testing.assert_allclose(j.axis, e["axis"], atol=1e-9)
+        np.testing.assert_allclose(j.point, e["point"], atol=1e-9)
+        assert (j.parent, j.child) == (e["parent"], e["child"])
+        np.testing.assert_allclose(j.range, e["range"], atol=1e-12)
+        assert (j.value_a, j.value_b) == (e["a"], e["b"])
+    assert scene.links[0].name == "object"
+    assert {li.name for li in scene.links} == {"object"} | {j.child for j in scene.joints}
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_motion_is_big_enough_and_moves_the_child_link(name):
+    """Revolute 25-35 deg, prismatic 8-12 cm; the child link's pose changes by exactly that."""
+    scene = load_scene(name)
+    pa, pb = scene.link_poses("a"), scene.link_poses("b")
+    for j in scene.joints:
+        T_rel = pb[j.child] @ np.linalg.inv(pa[j.child])  # world motion of the child link
+        if j.type == "revolute":
+            assert np.deg2rad(25) <= abs(j.motion) <= np.deg2rad(35)
+            rotvec = Rotation.from_matrix(T_rel[:3, :3]).as_rotvec()
+            np.testing.assert_allclose(rotvec, j.axis * j.motion, atol=1e-9)
+            # Points on the axis do not move.
+            np.testing.assert_allclose(T_rel[:3, :3] @ j.point + T_rel[:3, 3], j.point,
+                                       atol=1e-9)
+        else:
+            assert 0.08 <= abs(j.motion) <= 0.12
+            np.testing.assert_allclose(T_rel[:3, :3], np.eye(3), atol=1e-12)
+            np.testing.assert_allclose(T_rel[:3, 3], j.axis * j.motion, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_object_sits_on_the_table_centre(name):
+    scene = load_scene(name)
+    data = scene.make_data("a")
+    np.testing.assert_allclose(data.xpos[scene.links[0].body_id], [0, 0, 0.45], atol=1e-12)
+
+
+def test_set_configuration_and_load_by_path():
+    scene = load_scene("pliers")
+    same = load_scene(scene_path("pliers"))
+    assert same.path == scene.path and same.joints[0].name == scene.joints[0].name
+    data = scene.make_data("a")
+    j = scene.joints[0]
+    scene.set_configuration(data, "b")
+    assert data.qpos[j.qpos_adr] == j.value_b
+    scene.set_configuration(data, "a")
+    np.testing.assert_allclose(data.xanchor[j.joint_id], j.point, atol=1e-12)
+    with pytest.raises(ValueError, match="configuration"):
+        scene.set_configuration(data, "c")
+    other = mujoco.MjData(mujoco.MjModel.from_xml_string("<mujoco/>"))
+    with pytest.raises(ValueError, match="qpos of shape"):
+        scene.set_configuration(other, "a")
+
+
+# ------------------------------------------------------------------------------------------
+# Malformed scenes
+# ------------------------------------------------------------------------------------------
+
+_GOOD_OBJECT = """
+    <body name="object" pos="0 0 0.45">
+      <geom type="box" size="0.05 0.05 0.02"/>
+      <body name="lid" pos="0 0 0.03">
+        <joint name="lid_hinge" type="{jtype}" axis="0 1 0" {range}/>
+        <geom type="box" size="0.05 0.05 0.01"/>
+      </body>
+    </body>"""
+
+
+def _write(tmp_path: Path, *, obj: str | None = None, jtype: str = "hinge",
+           range_: str = 'range="0 1"', configs: str | None = None, asset: str = "") -> Path:
+    obj = _GOOD_OBJECT.format(jtype=jtype, range=range_) if obj is None else obj
+    if configs is None:
+        configs = ('<numeric name="config_a:lid_hinge" data="0"/>'
+                   '<numeric name="config_b:lid_hinge" data="0.5"/>')
+    path = tmp_path / "broken.xml"
+    path.write_text(f"""<mujoco>
+  <compiler angle="radian" autolimits="true"/>
+  <asset>{asset}</asset>
+  <worldbody>{obj}
+  </worldbody>
+  <custom>{configs}</custom>
+</mujoco>
+""")
+    return path
+
+
+def test_minimal_standalone_scene_loads(tmp_path):
+    scene = load_scene(_write(tmp_path))
+    (j,) = scene.joints
+    assert (j.type, j.parent, j.child, j.value_a, j.value_b) == ("revolute", "object", "lid",
+                                                                  0.0, 0.5)
+    np.testing.assert_allclose(j.point, [0, 0, 0.48], atol=1e-12)
+    np.testing.assert_allclose(j.axis, [0, 1, 0], atol=1e-12)
+
+
+@pytest.mark.parametrize("case, kwargs, needles", [
+    ("no object", dict(obj='<body name="thing"><geom size="0.1"/></body>', configs=""),
+     ['no body named "object"', 'name="object"']),
+    ("ball joint", dict(jtype="ball", range_=""),
+     ['<joint name="lid_hinge">', "ball joint", 'type="hinge"']),
+    ("free joint", dict(obj='<body name="object" pos="0 0 0.45"><freejoint name="f"/>'
+                            '<geom size="0.1"/></body>', configs=""),
+     ['<joint name="f">', "free joint", 'type="slide"']),
+    ("unknown joint", dict(configs='<numeric name="config_a:lid_hinge" data="0"/>'
+                                   '<numeric name="config_b:lid_hinge" data="0.5"/>'
+                                   '<numeric name="config_b:nothing" data="0"/>'),
+     ['<numeric name="config_b:nothing">', "unknown joint 'nothing'", "lid_hinge"]),
+    ("out of range", dict(configs='<numeric name="config_a:lid_hinge" data="0"/>'
+                                  '<numeric name="config_b:lid_hinge" data="1.5"/>'),
+     ['<numeric name="config_b:lid_hinge">', "outside the range [0, 1]", "inside the range"]),
+    ("missing config", dict(configs='<numeric name="config_a:lid_hinge" data="0"/>'),
+     ["'lid_hinge' has no value in configuration 'b'", 'name="config_b:lid_hinge"']),
+    ("bad config name", dict(configs='<numeric name="config_c:lid_hinge" data="0"/>'),
+     ['<numeric name="config_c:lid_hinge">', "config_a:<joint name>"]),
+    ("no range", dict(range_=""), ['<joint name="lid_hinge">', "no range", 'range="LO HI"']),
+    ("missing texture", dict(asset='<texture name="t" type="2d" file="no_such_texture.png"/>'),
+     ["no_such_texture.png", "could not compile", "relative to the scene file's folder"]),
+    ("missing mesh", dict(asset='<mesh name="m" file="no_such_mesh.obj"/>'),
+     ["no_such_mesh.obj", "could not compile", "make_assets.py"]),
+])
+def test_malformed_scene_raises_useful_error(tmp_path, case, kwargs, needles):
+    path = _write(tmp_path, **kwargs)
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    message = str(info.value)
+    assert str(path) in message, f"{case}: message does not name the file: {message}"
+    assert "fix" in message.lower(), f"{case}: message gives no fix: {message}"
+    for needle in needles:
+        assert needle in message, f"{case}: {needle!r} not in {message!r}"
+
+
+def test_unknown_scene_name_lists_the_scenes():
+    with pytest.raises(SceneError, match="pliers"):
+        load_scene("no_such_scene")
+    with pytest.raises(SceneError, match="no such scene file"):
+        load_scene("/nonexistent/scene.xml")
+
+
+# ------------------------------------------------------------------------------------------
+# Assets
+# ------------------------------------------------------------------------------------------
+
+
+def _visible_object_and_stage_geoms(scene):
+    """Geoms drawn by the renderer (groups 0-2) on the object, the table and the world."""
+    model = scene.model
+    keep = {0, mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "table")}
+    keep |= {b for li in scene.links for b in li.body_ids}
+    return [g for g in range(model.ngeom)
+            if int(model.geom_bodyid[g]) in keep and int(model.geom_group[g]) <= 2
+            and model.geom_rgba[g, 3] > 0]
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_every_visible_surface_is_a_textured_uv_mesh(name):
+    scene = load_scene(name)
+    model = scene.model
+    geoms = _visible_object_and_stage_geoms(scene)
+    assert len(geoms) >= 4  # floor, walls, table, at least one object part
+    for g in geoms:
+        gname = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g)
+        assert model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH, f"{gname} is not a mesh"
+        mesh = int(model.geom_dataid[g])
+        assert model.mesh_texcoordnum[mesh] > 0, f"{gname}: mesh has no texture coordinates"
+        mat = int(model.geom_matid[g])
+        assert mat >= 0 and model.mat_texid[mat, int(mujoco.mjtTextureRole.mjTEXROLE_RGB)] >= 0, \
+            f"{gname}: no 2d texture"
+        assert model.geom_contype[g] == 0 and model.geom_conaffinity[g] == 0
+
+
+def _read_obj(path: Path):
+    v, vt, faces = [], [], []
+    for line in path.read_text().splitlines():
+        parts = line.split()
+        if not parts:
+            continue
+        if parts[0] == "v":
+            v.append([float(x) for x in parts[1:4]])
+        elif parts[0] == "vt":
+            vt.append([float(x) for x in parts[1:3]])
+        elif parts[0] == "f":
+            faces.append([[int(i) - 1 for i in p.split("/")[:2]] for p in parts[1:]])
+    f = np.array(faces)
+    return np.array(v), np.array(vt), f[:, :, 0], f[:, :, 1]
+
+
+OBJS = sorted(ASSETS.glob("*.obj"))
+PNGS = sorted(ASSETS.glob("*.png"))
+OBJECT_PARTS = ("pliers_fixed", "pliers_moving", "truck_chassis", "truck_bed", "cabinet",
+                "drawer")
+
+
+@pytest.mark.parametrize("obj", OBJS, ids=lambda p: p.stem)
+def test_uv_regions_are_disjoint_and_fine_enough(obj):
+    """No texel is used by two triangles (a texture never repeats on a surface), and object
+    parts get at least one texel per image pixel at the capture distance."""
+    v, vt, fv, ft = _read_obj(obj)
+    h, w = cv2.imread(str(obj.with_suffix(".png"))).shape[:2]
+    uv = np.c_[vt[:, 0] * w, (1.0 - vt[:, 1]) * h]  # texel coordinates, rows from the top
+    cover = np.zeros((h, w), np.int32)
+    texel_sizes = []
+    for tv, tt in zip(fv, ft, strict=True):
+        a, b, c = uv[tt]
+        area_uv = 0.5 * abs((b - a)[0] * (c - a)[1] - (b - a)[1] * (c - a)[0])
+        area_3d = 0.5 * np.linalg.norm(np.cross(v[tv[1]] - v[tv[0]], v[tv[2]] - v[tv[0]]))
+        texel_sizes.append(np.sqrt(area_3d / area_uv))
+        lo = np.floor(np.min(uv[tt], 0)).astype(int)
+        hi = np.ceil(np.max(uv[tt], 0)).astype(int)
+        assert np.all(lo >= 0) and hi[0] <= w and hi[1] <= h, f"{obj.name}: UV outside atlas"
+        xs, ys = np.meshgrid(np.arange(lo[0], hi[0]) + 0.5, np.arange(lo[1], hi[1]) + 0.5)
+        p = np.stack([xs, ys], -1)
+        d = (b - a)[0] * (c - a)[1] - (b - a)[1] * (c - a)[0]
+        l1 = ((b - p)[..., 0] * (c - p)[..., 1] - (b - p)[..., 1] * (c - p)[..., 0]) / d
+        l2 = ((c - p)[..., 0] * (a - p)[..., 1] - (c - p)[..., 1] * (a - p)[..., 0]) / d
+        inside = (l1 > 1e-6) & (l2 > 1e-6) & (1 - l1 - l2 > 1e-6)
+        cover[lo[1]:hi[1], lo[0]:hi[0]] += inside
+    assert cover.max() <= 1, f"{obj.name}: {np.sum(cover > 1)} texels used twice"
+    if obj.stem in OBJECT_PARTS:
+        assert max(texel_sizes) <= MAX_OBJECT_TEXEL, \
+            f"{obj.name}: texels of {max(texel_sizes) * 1000:.2f} mm"
+
+
+@pytest.mark.parametrize("png", PNGS, ids=lambda p: p.stem)
+def test_texture_is_rich_and_does_not_repeat(png):
+    img = cv2.imread(str(png)).astype(np.float32)
+    detail = img - cv2.GaussianBlur(img, (0, 0), DETAIL_SIGMA)
+    t = TILE
+    h, w = (s // t * t for s in img.shape[:2])
+    tiles = detail[:h, :w].reshape(h // t, t, w // t, t, 3).transpose(0, 2, 1, 3, 4)
+    tiles = tiles.reshape(-1, t * t * 3)
+    tiles -= tiles.mean(1, keepdims=True)
+    std = np.sqrt((tiles ** 2).mean(1))
+    assert std.min() >= MIN_TILE_STD, f"{png.name}: a blank {t}x{t} tile (std {std.min():.1f})"
+    unit = tiles / np.linalg.norm(tiles, axis=1, keepdims=True)
+    corr = unit @ unit.T
+    np.fill_diagonal(corr, 0.0)
+    assert corr.max() < MAX_TILE_CORRELATION, f"{png.name}: repeated tiles ({corr.max():.3f})"
+    # A repeat by any shift shows as a peak of the autocorrelation of the texture's detail.
+    spectrum = np.fft.rfft2(detail.mean(-1))
+    ac = np.fft.irfft2(np.abs(spectrum) ** 2, s=detail.shape[:2])
+    ac /= ac[0, 0]
+    dy = np.minimum(np.arange(ac.shape[0]), ac.shape[0] - np.arange(ac.shape[0]))[:, None]
+    dx = np.minimum(np.arange(ac.shape[1]), ac.shape[1] - np.arange(ac.shape[1]))[None, :]
+    far = np.hypot(dx, dy) > MIN_REPEAT_SHIFT
+    assert ac[far].max() < MAX_AUTOCORRELATION, \
+        f"{png.name}: the texture repeats (autocorrelation {ac[far].max():.2f})"
+
+
+def _load_make_assets():
+    spec = importlib.util.spec_from_file_location("make_assets", SCENES_DIR / "make_assets.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up while it executes
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        del sys.modules[spec.name]
+    return module
+
+
+def test_make_assets_reproduces_the_committed_assets(tmp_path):
+    make_assets = _load_make_assets()
+    make_assets.generate(tmp_path)
+    names = {p.name for p in tmp_path.iterdir()}
+    assert names == {p.name for p in ASSETS.iterdir()}
+    for p in sorted(tmp_path.iterdir()):
+        committed = ASSETS / p.name
+        if p.suffix == ".obj":
+            assert p.read_bytes() == committed.read_bytes(), f"{p.name} differs"
+        else:
+            np.testing.assert_array_equal(cv2.imread(str(p)), cv2.imread(str(committed)),
+                                          err_msg=f"{p.name} differs")
+
+
+def test_assets_are_small():
+    total = sum(p.stat().st_size for p in ASSETS.iterdir())
+    assert total < 6e6, f"assets take {total / 1e6:.1f} MB"
