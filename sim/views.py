@@ -27,6 +27,9 @@ MAX_NEIGHBOUR_ANGLE_DEG = 10.0
 #: reach a view upright: any roll shows the same scene, so it is a free choice of the planner.
 ROLL_CANDIDATES_DEG = (0.0, 90.0, -90.0, 180.0, 45.0, -45.0, 135.0, -135.0)
 
+#: Random IK restarts for the upright view (sim.robot.solve_view_ik); rolled fallbacks get 2.
+IK_RESTARTS = 8
+
 #: Smallest ring radius (m): the wrist camera's near clipping distance (sim.render.ZNEAR, 0.15 m)
 #: plus room for the gripper, whatever the object's size.
 MIN_RING_DISTANCE = 0.25
@@ -269,25 +272,34 @@ def solve_views(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinema
     q_prev = None
     for view in views:
         reasons = []
+        found = False
         for roll in ROLL_CANDIDATES_DEG:
             T = rolled(view.T_world_camera, roll)
-            res = robot.solve_view_ik(kin, T, q_prev, seed=seed + view.index)
-            if not res.success:
-                reasons.append(f"roll {roll:+.0f}: IK {res.position_error * 1e3:.1f} mm "
-                               f"{np.rad2deg(res.rotation_error):.2f} deg off")
-                continue
-            data.qpos[:] = saved
-            data.qpos[qidx] = res.q
-            mujoco.mj_forward(model, data)
-            hits = arm_collisions(model, data, links)
-            if hits:
-                reasons.append(f"roll {roll:+.0f}: collision {', '.join(hits[:3])}")
-                continue
-            view.q, view.roll_deg, view.reason = res.q.copy(), roll, ""
-            view.T_world_camera = T
-            q_prev = res.q
-            break
-        else:
+            # start from the previous view (short moves), else from the arm's default seed; the
+            # upright view gets the full IK effort, the rolled fallbacks a few restarts each
+            starts = [q_prev, None] if q_prev is not None else [None]
+            for q0 in starts if roll == 0.0 else starts[:1]:
+                res = robot.solve_view_ik(kin, T, q0, seed=seed + view.index,
+                                          restarts=IK_RESTARTS if roll == 0.0 else 2)
+                if not res.success:
+                    reasons.append(f"roll {roll:+.0f}: IK {res.position_error * 1e3:.1f} mm "
+                                   f"{np.rad2deg(res.rotation_error):.2f} deg off")
+                    continue
+                data.qpos[:] = saved
+                data.qpos[qidx] = res.q
+                mujoco.mj_forward(model, data)
+                hits = arm_collisions(model, data, links)
+                if hits:
+                    reasons.append(f"roll {roll:+.0f}: collision {', '.join(hits[:3])}")
+                    continue
+                view.q, view.roll_deg, view.reason = res.q.copy(), roll, ""
+                view.T_world_camera = T
+                q_prev = res.q
+                found = True
+                break
+            if found:
+                break
+        if not found:
             view.reason = "; ".join(reasons)
             log.info("view %d (ring %d, azimuth %.0f deg) unreachable: %s", view.index, view.ring,
                      np.rad2deg(view.azimuth), view.reason)

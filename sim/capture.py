@@ -1,0 +1,463 @@
+"""Eye-in-hand capture: the arm photographs the object from all sides.
+
+``python -m sim.capture SCENE --config a|b --out DIR [--views N] [--seed S]`` writes one image set::
+
+    DIR/images/000.png ...        what the wrist camera saw (RGB)
+    DIR/cameras.json              intrinsics K, size, per image the arm's joint angles and the
+                                  camera pose from the arm's forward kinematics (what a real robot
+                                  knows); this and images/ are what artrecon reads
+    DIR/capture.json              the plan: views planned, captured, unreachable and why
+    DIR/ground_truth/             scoring only, never read by artrecon:
+        poses.json                true camera poses (MuJoCo), FK error, object joint values, object
+                                  link poses, label legend, depth scale
+        depth/000.png             uint16 depth along the optical axis, 1 unit = 0.1 mm, 0 = none
+        labels/000.png            uint8 label: object link index, 253 arm, 254 stage, 255 nothing
+
+The views lie on rings around the object (:mod:`sim.views`); the arm reaches each by inverse
+kinematics and MuJoCo moves it there with its position servos (physics, joint-space interpolation),
+then the image is rendered with pyrender (:mod:`sim.render`) at the wrist camera's true pose. The
+set is written to a temporary folder beside DIR and renamed, so DIR is whole or absent.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import mujoco
+import numpy as np
+from PIL import Image
+from tqdm import tqdm
+
+from sim import render, robot, views
+from sim.camera import convert_camera_pose, mujoco_camera_intrinsics
+
+log = logging.getLogger(__name__)
+
+CONFIGS = ("a", "b")
+
+#: Fewest images a set may have: fewer cannot give a reconstruction from all sides.
+MIN_CAPTURED_VIEWS = 8
+
+#: Joint-space speed (rad/s) of the commanded motion between views: slow enough for the PUMA's
+#: servos to track without overshoot into the table.
+MOVE_SPEED = 1.0
+#: The arm has settled when its joint speeds are below this (rad/s) ...
+SETTLE_SPEED = 1e-3
+#: ... or after this much simulated time (s), whichever is first.
+SETTLE_MAX_TIME = 2.0
+#: Contacts of the arm links are checked every this many physics steps while it moves.
+PATH_CHECK_EVERY = 10
+#: The object may not move while the arm works around it: its joints must stay within this of
+#: the configuration (rad or m); 0.1 mrad / 0.1 mm is below anything a reconstruction resolves.
+OBJECT_DRIFT_TOL = 1e-4
+
+#: Label codes in ground_truth/labels/*.png.
+LABEL_PNG_ARM = 253
+LABEL_PNG_STAGE = 254
+LABEL_PNG_BACKGROUND = 255
+#: Renderer labels of the arm (rail carriage and everything on it) and of the rest of the stage.
+LABEL_ARM = -2
+LABEL_STAGE = -3
+#: Depth PNG unit (m): 0.1 mm, far below the 1 mm scoring tolerance; range up to 6.55 m.
+DEPTH_PNG_SCALE = 1e-4
+
+
+class CaptureError(RuntimeError):
+    """The capture cannot produce a usable image set (too few reachable views, object moved)."""
+
+
+@dataclass
+class CaptureResult:
+    """What :func:`capture` wrote."""
+
+    out_dir: Path
+    """the image set folder"""
+    n_planned: int
+    """views planned"""
+    n_captured: int
+    """images written"""
+    unreachable: list[dict] = field(default_factory=list)
+    """views the arm could not reach: ring, azimuth/elevation (deg), reason"""
+    free_camera: list[int] = field(default_factory=list)
+    """image indices taken by a free camera (only with ``free_camera_fallback``)"""
+    max_fk_position_error: float = 0.0
+    """largest distance (m) between the FK camera pose and MuJoCo's camera"""
+    max_fk_rotation_error: float = 0.0
+    """largest angle (rad) between them"""
+    timings: dict = field(default_factory=dict)
+    """seconds spent planning, moving, rendering, writing (not written to disk)"""
+
+
+# ------------------------------------------------------------------------------------ scene access
+def _load(scene):
+    """A :class:`sim.scene.Scene` from a bundled name, an MJCF path or a loaded scene."""
+    from sim.scene import Scene, load_scene
+
+    if isinstance(scene, Scene):
+        return scene
+    if isinstance(scene, (str, os.PathLike)):
+        return load_scene(scene)
+    raise TypeError(f"scene must be a name, a path or a sim.scene.Scene, got {type(scene)}")
+
+
+def _joint_values(sc, data) -> dict[str, float]:
+    return {j.name: float(data.qpos[j.qpos_adr]) for j in sc.joints}
+
+
+def _geom_labels(model: mujoco.MjModel, sc, arm_root: int) -> np.ndarray:
+    """Renderer label of every geom: object link index, LABEL_ARM or LABEL_STAGE."""
+    link_of = {b: i for i, li in enumerate(sc.links) for b in li.body_ids}
+    labels = np.full(model.ngeom, LABEL_STAGE, dtype=np.int64)
+    for g in range(model.ngeom):
+        b = int(model.geom_bodyid[g])
+        if b in link_of:
+            labels[g] = link_of[b]
+            continue
+        c = b
+        while c > 0 and c != arm_root:
+            c = int(model.body_parentid[c])
+        if c == arm_root and arm_root > 0:
+            labels[g] = LABEL_ARM
+    return labels
+
+
+def _labels_png(labels: np.ndarray) -> np.ndarray:
+    out = np.full(labels.shape, LABEL_PNG_BACKGROUND, dtype=np.uint8)
+    links = labels >= 0
+    if np.any(labels[links] >= LABEL_PNG_ARM):
+        raise CaptureError(f"more than {LABEL_PNG_ARM} object links cannot be stored in 8 bits")
+    out[links] = labels[links]
+    out[labels == LABEL_ARM] = LABEL_PNG_ARM
+    out[labels == LABEL_STAGE] = LABEL_PNG_STAGE
+    return out
+
+
+def _depth_png(depth: np.ndarray) -> np.ndarray:
+    units = np.round(np.asarray(depth, dtype=np.float64) / DEPTH_PNG_SCALE)
+    units[(units <= 0) | (units > 65535)] = 0
+    return units.astype(np.uint16)
+
+
+def read_depth_png(path) -> np.ndarray:
+    """Depth (m) : (h, w) float from a ground-truth depth PNG (0 where no surface)."""
+    return np.asarray(Image.open(path), dtype=np.float64) * DEPTH_PNG_SCALE
+
+
+def _rot_angle(R: np.ndarray) -> float:
+    return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def _as_list(T) -> list:
+    return [[float(x) for x in row] for row in np.asarray(T)]
+
+
+# ------------------------------------------------------------------------------------ arm motion
+class _Arm:
+    """Moves the arm in MuJoCo with its position servos and watches what it touches."""
+
+    def __init__(self, model, data, kin):
+        self.model, self.data, self.kin = model, data, kin
+        self.qidx = robot.qpos_indices(model, kin)
+        self.vidx = np.array([model.jnt_dofadr[mujoco.mj_name2id(
+            model, mujoco.mjtObj.mjOBJ_JOINT, n)] for n in kin.joint_names])
+        self.aidx = robot.actuator_indices(model, kin)
+        self.links = views.arm_link_bodies(model, kin)
+
+    def place(self, q):
+        """Start the arm at ``q`` (the robot's initial pose)."""
+        self.data.qpos[self.qidx] = q
+        self.data.qvel[:] = 0.0
+        self.data.ctrl[self.aidx] = q
+        mujoco.mj_forward(self.model, self.data)
+
+    def move(self, q) -> list[str]:
+        """Drive to ``q`` on a straight joint-space line, then settle; returns contacts met."""
+        m, d = self.model, self.data
+        dt = m.opt.timestep
+        q0 = d.ctrl[self.aidx].copy()
+        steps = max(1, int(np.ceil(np.max(np.abs(q - q0)) / MOVE_SPEED / dt)))
+        hits: set[str] = set()
+        for i in range(1, steps + 1):
+            d.ctrl[self.aidx] = q0 + (q - q0) * (i / steps)
+            mujoco.mj_step(m, d)
+            if i % PATH_CHECK_EVERY == 0:
+                hits.update(views.arm_collisions(m, d, self.links))
+        for _ in range(int(SETTLE_MAX_TIME / dt)):
+            mujoco.mj_step(m, d)
+            if np.max(np.abs(d.qvel[self.vidx])) < SETTLE_SPEED:
+                break
+        mujoco.mj_forward(m, d)
+        hits.update(views.arm_collisions(m, d, self.links))
+        return sorted(hits)
+
+    def measured_q(self) -> np.ndarray:
+        return self.data.qpos[self.qidx].copy()
+
+
+# ------------------------------------------------------------------------------------ capture
+def _check_out_dir(out_dir: Path, overwrite: bool) -> Path:
+    out_dir = Path(out_dir).absolute()
+    parent = out_dir.parent
+    if not parent.is_dir():
+        raise ValueError(f"cannot write the image set to {out_dir}: its parent folder {parent} "
+                         "does not exist; create it or choose another --out")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise PermissionError(f"cannot write the image set to {out_dir}: folder {parent} is not "
+                              "writable; choose another --out")
+    if out_dir.exists() and not overwrite:
+        raise FileExistsError(f"{out_dir} already exists; remove it, choose another --out, or pass "
+                              "--overwrite")
+    return out_dir
+
+
+def capture(scene, config: str, out_dir, *, n_views: int = 36,
+            elevations_deg: tuple[float, ...] = (20.0, 40.0, 60.0),
+            top_elevations_deg: tuple[float, ...] = (75.0,), fill: float = 0.6, seed: int = 0,
+            free_camera_fallback: bool = False, overwrite: bool = False,
+            progress: bool = True) -> CaptureResult:
+    """Capture one image set of a scene in one configuration of its object.
+
+    Parameters
+    ----------
+    scene : str, path or sim.scene.Scene
+        A bundled scene's name (``"pliers"``), an MJCF path, or a loaded scene.
+    config : {"a", "b"}
+        Which configuration of the object to photograph.
+    out_dir : path
+        Folder to create (its parent must exist and be writable).
+    n_views : int
+        Views per full ring (36 keeps neighbours 10 degrees apart, as the method needs); rings near
+        the top get proportionally fewer.
+    elevations_deg, top_elevations_deg, fill
+        Ring layout, see :class:`sim.views.ViewPlanConfig`.
+    seed : int
+        Seeds each ring's first azimuth and the IK restarts. Same arguments, same files.
+    free_camera_fallback : bool
+        Photograph views the arm cannot reach with a free camera (pose unknown to the robot:
+        ``T_world_camera`` is null in cameras.json). Off by default: those views are reported.
+    overwrite : bool
+        Replace an existing ``out_dir``.
+    progress : bool
+        Show a tqdm progress bar.
+
+    Returns
+    -------
+    CaptureResult
+    """
+    if config not in CONFIGS:
+        raise ValueError(f"unknown configuration {config!r}; choose one of {CONFIGS}")
+    plan_cfg = views.ViewPlanConfig(views_per_ring=n_views, elevations_deg=tuple(elevations_deg),
+                                    top_elevations_deg=tuple(top_elevations_deg), fill=fill,
+                                    seed=seed)
+    out_dir = _check_out_dir(Path(out_dir), overwrite)
+    t_start = time.perf_counter()
+    sc = _load(scene)
+    model = sc.model
+    data = sc.make_data(config)  # arm at its home keyframe, object in the configuration
+
+    kin = robot.load_arm_kinematics(model)
+    cam_name = kin.spec.prefix + kin.spec.camera
+    cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, cam_name)
+    K, (width, height) = mujoco_camera_intrinsics(model, cam_name)
+    joints_config = sc.configuration(config)
+    centre, radius = views.object_bounding_sphere(model, data)
+    distance = views.ring_distance(radius, K, width, height, fill)
+    plan = views.ViewPlan(centre=centre, radius=radius, distance=distance,
+                          views=views.order_for_rail(views.plan_views(centre, distance, plan_cfg),
+                                                     kin))
+    log.info("%s config %s: %d views on %d rings at %.3f m around the object (radius %.3f m)",
+             sc.name, config, len(plan.views), len(views.ring_sizes(plan_cfg)), distance, radius)
+
+    bar = tqdm(total=2 * len(plan.views), desc=f"capture {sc.name}/{config}", unit="view",
+               disable=not progress)
+    views.solve_views(model, data, kin, plan.views, seed=seed, progress=bar)
+    t_plan = time.perf_counter()
+    reachable = plan.reachable
+    to_take = [v for v in plan.views if v.reachable or free_camera_fallback]
+    bar.total = len(plan.views) + len(to_take)
+    bar.refresh()
+    if len(to_take) < MIN_CAPTURED_VIEWS:
+        bar.close()
+        raise CaptureError(
+            f"only {len(reachable)} of {len(plan.views)} planned views of {sc.name!r} are "
+            f"reachable (need {MIN_CAPTURED_VIEWS}); use more views per ring (--views), other "
+            f"elevations, or --free-camera-fallback. First reasons: "
+            + "; ".join(f"view {v.index}: {v.reason}" for v in plan.unreachable[:3]))
+
+    arm_root = int(model.jnt_bodyid[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT,
+                                                      kin.joint_names[0])])
+    link_names = [li.name for li in sc.links]
+    renderer = render.MjRenderer(model, geom_labels=_geom_labels(model, sc, arm_root))
+    arm = _Arm(model, data, kin)
+    if reachable:
+        arm.place(reachable[0].q)
+
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".tmp", dir=out_dir.parent))
+    try:
+        for sub in ("images", "ground_truth/depth", "ground_truth/labels"):
+            (tmp / sub).mkdir(parents=True)
+        cam_images, gt_images, free = [], [], []
+        t_move = t_render = 0.0
+        max_dp = max_dr = 0.0
+        for i, view in enumerate(to_take):
+            name = f"{i:03d}.png"
+            t0 = time.perf_counter()
+            path_hits: list[str] = []
+            if view.reachable:
+                path_hits = arm.move(view.q)
+                if path_hits:
+                    log.warning("view %d: the arm touched %s on its way", i, ", ".join(path_hits))
+            joints_now = _joint_values(sc, data)
+            drift = max((abs(joints_now[k] - joints_config[k]) for k in joints_now), default=0.0)
+            if drift > OBJECT_DRIFT_TOL:
+                raise CaptureError(
+                    f"the arm moved the object of {sc.name!r} by {drift:.2e} (rad or m) while "
+                    f"reaching view {i} (contacts: {', '.join(path_hits) or 'none seen'}); the "
+                    "scene or the view plan lets the arm hit the object")
+            T_true = convert_camera_pose(np.r_[np.c_[data.cam_xmat[cam_id].reshape(3, 3),
+                                                     data.cam_xpos[cam_id]], [[0, 0, 0, 1]]])
+            if view.reachable:
+                q = arm.measured_q()
+                T_fk = kin.camera_pose(q)
+                dp = float(np.linalg.norm(T_fk[:3, 3] - T_true[:3, 3]))
+                dr = _rot_angle(T_fk[:3, :3].T @ T_true[:3, :3])
+                max_dp, max_dr = max(max_dp, dp), max(max_dr, dr)
+                T_render = T_true
+            else:
+                q, T_fk, dp, dr = None, None, None, None
+                T_render = view.T_world_camera
+                free.append(i)
+            t1 = time.perf_counter()
+            out = renderer.render(data, K, T_render, width, height, depth=True, labels=True)
+            t2 = time.perf_counter()
+            t_move += t1 - t0
+            t_render += t2 - t1
+            Image.fromarray(out.color).save(tmp / "images" / name)
+            Image.fromarray(_depth_png(out.depth)).save(tmp / "ground_truth" / "depth" / name)
+            Image.fromarray(_labels_png(out.labels)).save(tmp / "ground_truth" / "labels" / name)
+            cam_images.append({
+                "file": name,
+                "pose_source": "arm_fk" if view.reachable else "free_camera",
+                "q": None if q is None else [float(x) for x in q],
+                "T_world_camera": None if T_fk is None else _as_list(T_fk),
+            })
+            gt_images.append({
+                "file": name,
+                "view": {"ring": view.ring, "azimuth_deg": float(np.rad2deg(view.azimuth)),
+                         "elevation_deg": float(np.rad2deg(view.elevation)),
+                         "roll_deg": view.roll_deg},
+                "T_world_camera": _as_list(T_render),
+                "fk_position_error_m": dp,
+                "fk_rotation_error_rad": dr,
+                "object_joints": joints_now,
+                "link_poses": {li.name: _as_list(np.r_[np.c_[
+                    data.xmat[li.body_id].reshape(3, 3), data.xpos[li.body_id]], [[0, 0, 0, 1]]])
+                    for li in sc.links},
+                "arm_path_contacts": path_hits,
+            })
+            bar.update(1)
+        bar.close()
+        unreachable = [{"ring": v.ring, "azimuth_deg": float(np.rad2deg(v.azimuth)),
+                        "elevation_deg": float(np.rad2deg(v.elevation)), "reason": v.reason}
+                       for v in plan.unreachable]
+        cameras = {
+            "format": "artrecon-capture/1",
+            "scene": sc.name,
+            "config": config,
+            "convention": "OpenCV camera (x right, y down, z forward); T_world_camera maps camera "
+                          "coordinates to world coordinates; metres, radians",
+            "width": width, "height": height, "K": _as_list(K),
+            "joint_names": list(kin.joint_names),
+            "images": cam_images,
+        }
+        report = {
+            "scene": sc.name, "config": config, "seed": seed, "views_per_ring": n_views,
+            "elevations_deg": list(elevations_deg), "top_elevations_deg": list(top_elevations_deg),
+            "fill": fill, "ring_distance_m": distance,
+            "planned": len(plan.views), "captured": len(to_take),
+            "free_camera_images": free, "unreachable": unreachable,
+        }
+        truth = {
+            "scene": sc.name, "config": config,
+            "object_joints": joints_config,
+            "object_links": link_names,
+            "object_bounding_sphere": {"centre": [float(x) for x in centre], "radius": radius},
+            "label_legend": {**{str(i): n for i, n in enumerate(link_names)},
+                             str(LABEL_PNG_ARM): "arm", str(LABEL_PNG_STAGE): "stage",
+                             str(LABEL_PNG_BACKGROUND): "background"},
+            "depth_png_scale_m": DEPTH_PNG_SCALE,
+            "images": gt_images,
+        }
+        for path, obj in ((tmp / "cameras.json", cameras), (tmp / "capture.json", report),
+                          (tmp / "ground_truth" / "poses.json", truth)):
+            path.write_text(json.dumps(obj, indent=2) + "\n")
+        os.chmod(tmp, 0o755)
+        if out_dir.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".old",
+                                        dir=out_dir.parent))
+            os.replace(out_dir, old / "set")
+            os.replace(tmp, out_dir)
+            shutil.rmtree(old)
+        else:
+            os.replace(tmp, out_dir)
+    except BaseException:
+        bar.close()
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    t_end = time.perf_counter()
+    result = CaptureResult(
+        out_dir=out_dir, n_planned=len(plan.views), n_captured=len(to_take),
+        unreachable=unreachable, free_camera=free, max_fk_position_error=max_dp,
+        max_fk_rotation_error=max_dr,
+        timings={"plan_s": t_plan - t_start, "move_s": t_move, "render_s": t_render,
+                 "total_s": t_end - t_start,
+                 "render_ms_per_image": 1e3 * t_render / max(1, len(to_take))})
+    log.info("%s config %s: %d/%d views captured into %s (%.1f s)", sc.name, config,
+             result.n_captured, result.n_planned, out_dir, result.timings["total_s"])
+    return result
+
+
+def main(argv=None) -> int:
+    """Command line: ``python -m sim.capture SCENE --config a|b --out DIR``."""
+    import argparse
+
+    p = argparse.ArgumentParser(prog="python -m sim.capture", description=__doc__.split("\n")[0])
+    p.add_argument("scene", help="a bundled scene's name (pliers, truck, drawer) or an MJCF path")
+    p.add_argument("--config", required=True, help="object configuration: a or b")
+    p.add_argument("--out", required=True, type=Path, help="image set folder to create")
+    p.add_argument("--views", type=int, default=36,
+                   help="views per full ring (default 36: neighbours 10 degrees apart)")
+    p.add_argument("--seed", type=int, default=0, help="seed of ring phases and IK restarts")
+    p.add_argument("--fill", type=float, default=0.6,
+                   help="object's bounding-sphere diameter as a share of the shorter image side")
+    p.add_argument("--free-camera-fallback", action="store_true",
+                   help="photograph views the arm cannot reach with a free camera")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        res = capture(args.scene, args.config, args.out, n_views=args.views, seed=args.seed,
+                      fill=args.fill, free_camera_fallback=args.free_camera_fallback,
+                      overwrite=args.overwrite, progress=not args.quiet)
+    except (ValueError, FileNotFoundError, FileExistsError, PermissionError,
+            CaptureError) as e:
+        p.exit(2, f"error: {e}\n")
+    out = sys.stdout
+    out.write(f"{res.n_captured}/{res.n_planned} views captured into {res.out_dir}\n")
+    for u in res.unreachable:
+        out.write(f"  unreachable: ring {u['ring']} azimuth {u['azimuth_deg']:.0f} deg: "
+                  f"{u['reason']}\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
