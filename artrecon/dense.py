@@ -1,0 +1,456 @@
+"""Dense oriented points per configuration, on the CPU (the method's PMVS step).
+
+pycolmap's PatchMatch stereo needs CUDA, so this stage uses two-view stereo instead:
+
+1. every registered image is paired with a neighbour to its right (baseline mostly along the
+   image x axis, triangulation angle in a useful range, most shared sparse points);
+2. the pair is rectified with the SfM poses (OpenCV ``stereoRectify``) at a reduced resolution
+   and OpenCV semi-global matching (``StereoSGBM``) gives a disparity map, its search range taken
+   from the sparse points the two images share;
+3. disparities are back-projected to 3D; each image gets a depth map of its pair's points;
+4. multi-view consistency: a point is kept only if the depth maps of at least
+   ``min_consistent`` *other* images agree with its depth there (relative tolerance); the images
+   that agree, plus the pair, are the images that see it;
+5. the surviving points are merged on a voxel grid (position and colour averaged, visibility
+   united), and normals come from local PCA, oriented toward the cameras that see the point.
+
+All thresholds are relative (depth ratios, pixels), so the stage works in the arbitrary scale of
+an SfM model. Because the views ring the object, the point set covers it all around, the back
+side included.
+
+:func:`object_region` then separates the object from the static background (see its docstring).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from artrecon.errors import ReconstructionError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class DenseConfig:
+    """Settings of the dense stage."""
+
+    downsample: int = 2
+    """Stereo runs on images shrunk by this factor (2: 640x480 -> 320x240; 4x fewer pixels)."""
+    min_pair_angle_deg: float = 4.0
+    """Smallest triangulation angle of a stereo pair (smaller: depth too noisy)."""
+    max_pair_angle_deg: float = 25.0
+    """Largest triangulation angle (larger: the views differ too much for block matching)."""
+    block_size: int = 5
+    """SGBM block size in (downsampled) pixels."""
+    uniqueness_ratio: int = 10
+    """SGBM uniqueness margin in percent."""
+    disparity_margin: float = 8.0
+    """Pixels added on both sides of the sparse points' disparity range."""
+    depth_tolerance: float = 0.01
+    """Two depths agree when they differ by less than this fraction of the depth (1%: a few
+    SGBM sub-pixel steps at the ring's baselines)."""
+    min_consistent: int = 2
+    """A point must agree with the depth maps of at least this many other images."""
+    check_views: int = 10
+    """Images (closest in viewing direction) checked for consistency per reference image."""
+    voxel_pixels: float = 1.5
+    """Merge voxel edge, in downsampled pixels at the median depth."""
+    normal_neighbours: int = 16
+    """Neighbours for the PCA normal."""
+
+
+@dataclass
+class DensePoints:
+    """Oriented points of one configuration.
+
+    Attributes
+    ----------
+    points : (n, 3) float
+        Positions in the SfM world frame.
+    normals : (n, 3) float
+        Unit normals, pointing toward the cameras that see the point.
+    colors : (n, 3) uint8
+        RGB colour.
+    visibility : (n, m) bool
+        ``visibility[p, k]``: image ``image_names[k]`` sees point ``p``.
+    image_names : list of str
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    colors: np.ndarray
+    visibility: np.ndarray
+    image_names: list[str]
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def subset(self, mask: np.ndarray) -> DensePoints:
+        """The points selected by a boolean or index array."""
+        return DensePoints(self.points[mask], self.normals[mask], self.colors[mask],
+                           self.visibility[mask], list(self.image_names))
+
+
+@dataclass
+class _View:
+    name: str
+    K: np.ndarray  # (3, 3) at full resolution, OpenCV
+    T_cw: np.ndarray  # (4, 4) camera from world
+    centre: np.ndarray  # (3,)
+    axis: np.ndarray  # (3,) viewing direction in the world
+    point_ids: set
+
+
+def _views(sfm) -> list[_View]:
+    rec = sfm.reconstruction
+    views = []
+    for img in sorted(rec.images.values(), key=lambda im: im.name):
+        if not img.has_pose:
+            continue
+        T_cw = np.eye(4)
+        T_cw[:3, :] = img.cam_from_world().matrix()
+        R = T_cw[:3, :3]
+        ids = {p.point3D_id for p in img.points2D if p.has_point3D()}
+        views.append(_View(img.name, sfm.intrinsics(img.name), T_cw, -R.T @ T_cw[:3, 3], R[2],
+                           ids))
+    return views
+
+
+def _scaled_K(K: np.ndarray, f: int) -> np.ndarray:
+    """K of an image shrunk by ``f`` (pixel centres stay at integer coordinates)."""
+    Ks = K.copy()
+    Ks[:2, :2] /= f
+    Ks[:2, 2] = (K[:2, 2] + 0.5) / f - 0.5
+    return Ks
+
+
+def _load(path, f: int) -> np.ndarray:
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise ReconstructionError(f"dense: cannot read image {path}")
+    if f > 1:
+        img = cv2.resize(img, (img.shape[1] // f, img.shape[0] // f), interpolation=cv2.INTER_AREA)
+    return img
+
+
+def choose_partners(views: list[_View], centre: np.ndarray, config: DenseConfig) -> dict:
+    """For each view index, the partner view index to its right (or missing if none fits)."""
+    partners = {}
+    for i, vi in enumerate(views):
+        best, best_score = None, 0
+        for j, vj in enumerate(views):
+            if j == i:
+                continue
+            b = vi.T_cw[:3, :3] @ (vj.centre - vi.centre)  # baseline in camera i
+            if b[0] <= 0 or abs(b[1]) > 0.5 * b[0]:
+                continue
+            ri, rj = centre - vi.centre, centre - vj.centre
+            cosang = ri @ rj / (np.linalg.norm(ri) * np.linalg.norm(rj))
+            ang = np.degrees(np.arccos(np.clip(cosang, -1, 1)))
+            if not config.min_pair_angle_deg <= ang <= config.max_pair_angle_deg:
+                continue
+            score = len(vi.point_ids & vj.point_ids)
+            if score > best_score:
+                best, best_score = j, score
+        if best is not None:
+            partners[i] = best
+    return partners
+
+
+def _pair_points(vi: _View, vj: _View, img_i, img_j, sparse: np.ndarray, config: DenseConfig):
+    """World points, colours and source pixel of the SGBM disparity of one rectified pair."""
+    f = config.downsample
+    h, w = img_i.shape[:2]
+    Ki, Kj = _scaled_K(vi.K, f), _scaled_K(vj.K, f)
+    T_ji = vj.T_cw @ np.linalg.inv(vi.T_cw)
+    no_dist = np.zeros(5)
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(Ki, no_dist, Kj, no_dist, (w, h),
+                                                T_ji[:3, :3].copy(), T_ji[:3, 3].reshape(3, 1),
+                                                flags=cv2.CALIB_ZERO_DISPARITY, alpha=-1)
+    if abs(P2[1, 3]) > abs(P2[0, 3]):
+        return None  # vertical rectification; the partner choice should prevent this
+    # Disparity range from the sparse points seen by both images.
+    if len(sparse) < 10:
+        return None
+    Xi = (vi.T_cw[:3, :3] @ sparse.T).T + vi.T_cw[:3, 3]
+    Xj = (vj.T_cw[:3, :3] @ sparse.T).T + vj.T_cw[:3, 3]
+    xl = (P1[:, :3] @ (R1 @ Xi.T)).T
+    xr = (P2[:, :3] @ (R2 @ Xj.T)).T + P2[:, 3]
+    d = xl[:, 0] / xl[:, 2] - xr[:, 0] / xr[:, 2]
+    lo, hi = np.percentile(d, [1, 99])
+    min_disp = int(np.floor(lo - config.disparity_margin))
+    num = int(np.ceil((hi + config.disparity_margin - min_disp) / 16.0)) * 16
+    num = max(16, min(num, 256))
+    m1x, m1y = cv2.initUndistortRectifyMap(Ki, no_dist, R1, P1, (w, h), cv2.CV_32FC1)
+    m2x, m2y = cv2.initUndistortRectifyMap(Kj, no_dist, R2, P2, (w, h), cv2.CV_32FC1)
+    left = cv2.remap(img_i, m1x, m1y, cv2.INTER_LINEAR)
+    right = cv2.remap(img_j, m2x, m2y, cv2.INTER_LINEAR)
+    inside = (m1x >= 0) & (m1x <= w - 1) & (m1y >= 0) & (m1y <= h - 1)
+    bs = config.block_size
+    sgbm = cv2.StereoSGBM_create(minDisparity=min_disp, numDisparities=num, blockSize=bs,
+                                 P1=8 * 3 * bs * bs, P2=32 * 3 * bs * bs, disp12MaxDiff=1,
+                                 uniquenessRatio=config.uniqueness_ratio, speckleWindowSize=100,
+                                 speckleRange=2, mode=cv2.StereoSGBM_MODE_SGBM_3WAY)
+    # SGBM leaves the first min_disp + num columns of the left image without a match (their
+    # candidates fall off the right image): pad both images so every real column gets its range.
+    pad_l, pad_r = max(0, min_disp + num), max(0, -min_disp)
+    padded = [cv2.copyMakeBorder(im, 0, 0, pad_l, pad_r, cv2.BORDER_CONSTANT, value=0)
+              for im in (left, right)]
+    disp = sgbm.compute(*padded)[:, pad_l:pad_l + w].astype(np.float32) / 16.0
+    valid = inside & (disp > min_disp) & (disp < min_disp + num - 1)
+    pts_rect = cv2.reprojectImageTo3D(disp, Q)[valid]
+    cols = left[valid][:, ::-1]  # BGR -> RGB
+    X_cam = pts_rect @ R1  # rectified -> camera i (R1 maps camera i to rectified)
+    T_wc = np.linalg.inv(vi.T_cw)
+    X_w = X_cam @ T_wc[:3, :3].T + T_wc[:3, 3]
+    ok = X_cam[:, 2] > 0
+    return X_w[ok], cols[ok]
+
+
+def _project(view: _View, K: np.ndarray, X: np.ndarray, w: int, h: int):
+    Xc = X @ view.T_cw[:3, :3].T + view.T_cw[:3, 3]
+    z = Xc[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.rint(K[0, 0] * Xc[:, 0] / z + K[0, 2]).astype(np.int64, copy=False)
+        v = np.rint(K[1, 1] * Xc[:, 1] / z + K[1, 2]).astype(np.int64, copy=False)
+    inside = (z > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    return u, v, z, inside
+
+
+def dense_points(sfm, config: DenseConfig = DenseConfig(), progress=None) -> DensePoints:
+    """Dense oriented points of one SfM model (see the module docstring for the method).
+
+    Parameters
+    ----------
+    sfm : artrecon.sfm.SfMResult
+    config : DenseConfig
+    progress : text stream, optional
+        Where to draw a tqdm bar (None: no bar).
+
+    Returns
+    -------
+    DensePoints
+
+    Raises
+    ------
+    ReconstructionError
+        No stereo pair could be formed or no point survived the consistency check.
+    """
+    views = _views(sfm)
+    rec = sfm.reconstruction
+    f = config.downsample
+    pid = np.array(list(rec.point3D_ids()))
+    xyz = np.array([rec.points3D[i].xyz for i in pid]) if len(pid) else np.zeros((0, 3))
+    index = {int(p): k for k, p in enumerate(pid)}
+    centre = focus_point(np.array([v.centre for v in views]), np.array([v.axis for v in views]))
+    partners = choose_partners(views, centre, config)
+    if not partners:
+        raise ReconstructionError("dense: no stereo pair among the registered images (neighbours"
+                                  " too close, too far apart, or above/below each other); use a "
+                                  "ring of views 5-20 degrees apart")
+    images = {}
+
+    def img(k):
+        if k not in images:
+            images[k] = _load(sfm.image_dir / views[k].name, f)
+        return images[k]
+
+    h, w = img(next(iter(partners))).shape[:2]
+    Ks = [_scaled_K(v.K, f) for v in views]
+    clouds, colours, depth = {}, {}, {}
+    it = sorted(partners.items())
+    if progress is not None:
+        from tqdm import tqdm
+
+        it = tqdm(it, desc="dense stereo", unit="pair", leave=False, file=progress)
+    for i, j in it:
+        shared = [index[p] for p in views[i].point_ids & views[j].point_ids if p in index]
+        out = _pair_points(views[i], views[j], img(i), img(j), xyz[shared], config)
+        if out is None or len(out[0]) == 0:
+            continue
+        X, c = out
+        u, v, z, inside = _project(views[i], Ks[i], X, w, h)
+        X, c, u, v, z = X[inside], c[inside], u[inside], v[inside], z[inside]
+        D = np.full(h * w, np.inf)
+        np.minimum.at(D, v * w + u, z)
+        depth[i] = D.reshape(h, w)
+        clouds[i], colours[i] = X, c
+    if not clouds:
+        raise ReconstructionError("dense: stereo matching gave no points on any image pair")
+    # Multi-view consistency against the depth maps of the closest other views.
+    names = [v.name for v in views]
+    axes = np.array([v.axis for v in views])
+    keep_pts, keep_cols, keep_vis = [], [], []
+    for i, X in clouds.items():
+        order = np.argsort(-(axes @ axes[i]))
+        others = [k for k in order if k != i and k in depth][: config.check_views]
+        agree = np.zeros(len(X), dtype=int)
+        vis = np.zeros((len(X), len(views)), dtype=bool)
+        vis[:, i] = True
+        for k in others:
+            u, v, z, inside = _project(views[k], Ks[k], X, w, h)
+            dk = np.full(len(X), np.inf)
+            dk[inside] = depth[k][v[inside], u[inside]]
+            ok = inside & (np.abs(dk - z) < config.depth_tolerance * z)
+            agree += ok
+            vis[:, k] |= ok
+        good = agree >= config.min_consistent
+        vis[good, partners[i]] = True
+        keep_pts.append(X[good])
+        keep_cols.append(colours[i][good])
+        keep_vis.append(vis[good])
+    P = np.concatenate(keep_pts)
+    C = np.concatenate(keep_cols).astype(float)
+    V = np.concatenate(keep_vis)
+    if len(P) < 10:
+        raise ReconstructionError(f"dense: only {len(P)} points agree across views; the SfM poses "
+                                  "may be wrong or the surfaces lack texture")
+    # Merge on a voxel grid about 1.5 downsampled pixels wide at the median depth.
+    med_depth = np.median(np.linalg.norm(P - centre, axis=1)) + np.median(
+        [np.linalg.norm(v.centre - centre) for v in views]) * 0.0
+    cam_dist = np.median([np.linalg.norm(v.centre - centre) for v in views])
+    voxel = config.voxel_pixels * max(cam_dist, med_depth * 0) / Ks[0][0, 0]
+    keys = np.floor(P / voxel).astype(np.int64)
+    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    n = len(counts)
+    Pm = np.zeros((n, 3))
+    Cm = np.zeros((n, 3))
+    np.add.at(Pm, inv, P)
+    np.add.at(Cm, inv, C)
+    Pm /= counts[:, None]
+    Cm /= counts[:, None]
+    Vm = np.zeros((n, V.shape[1]), dtype=bool)
+    np.logical_or.at(Vm, inv, V)
+    normals = estimate_normals(Pm, Vm, np.array([v.centre for v in views]),
+                               config.normal_neighbours)
+    log.info("dense: %d pairs, %d consistent points, %d after merging (voxel %.4g)",
+             len(clouds), len(P), n, voxel)
+    return DensePoints(Pm, normals, np.clip(np.rint(Cm), 0, 255).astype(np.uint8), Vm, names)
+
+
+def estimate_normals(points: np.ndarray, visibility: np.ndarray, centres: np.ndarray,
+                     k: int = 16) -> np.ndarray:
+    """Unit normals (n, 3) by PCA of the ``k`` nearest neighbours, turned toward the mean
+    direction to the cameras that see each point (``visibility`` (n, m), ``centres`` (m, 3))."""
+    points = np.asarray(points, float)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points: expected shape (n, 3), got {points.shape}")
+    k = min(k, len(points))
+    _, nb = cKDTree(points).query(points, k=k)
+    nbrs = points[nb]
+    d = nbrs - nbrs.mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", d, d)
+    _, vecs = np.linalg.eigh(cov)
+    normals = vecs[:, :, 0]
+    counts = visibility.sum(1, keepdims=True).clip(min=1)
+    to_cam = (visibility.astype(float) @ centres) / counts - points
+    flip = np.einsum("ij,ij->i", normals, to_cam) < 0
+    normals[flip] *= -1
+    return normals
+
+
+def focus_point(centres: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """The point (3,) closest, in least squares, to all cameras' optical axes.
+
+    Parameters
+    ----------
+    centres : (m, 3) float
+        Camera centres.
+    axes : (m, 3) float
+        Unit viewing directions.
+    """
+    centres = np.asarray(centres, float)
+    axes = np.asarray(axes, float)
+    if centres.shape != axes.shape or centres.ndim != 2 or centres.shape[1] != 3:
+        raise ValueError(f"centres and axes: expected two (m, 3) arrays, got {centres.shape} and "
+                         f"{axes.shape}")
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for c, a in zip(centres, axes, strict=True):
+        M = np.eye(3) - np.outer(a, a)
+        A += M
+        b += M @ c
+    return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+@dataclass(frozen=True)
+class RegionConfig:
+    """How the object is told from the static background (table, room)."""
+
+    radius_fraction: float = 0.6
+    """Keep points within this fraction of the median camera distance from the focus point
+    (the cameras circle the object and look at it; the room is farther out)."""
+    plane_tolerance: float = 0.01
+    """Support plane inlier distance, as a fraction of the median camera distance."""
+    plane_min_fraction: float = 0.15
+    """A plane is taken for the table only if it holds this share of the cropped points."""
+    plane_iterations: int = 500
+    """RANSAC hypotheses for the support plane."""
+
+
+def object_region(points: np.ndarray, centres: np.ndarray, axes: np.ndarray,
+                  config: RegionConfig = RegionConfig(), seed: int = 0) -> np.ndarray:
+    """Mask (n,) of the points that belong to the object rather than the background.
+
+    The cameras ring the object and look at it, so (1) points farther from the focus point of
+    the optical axes than ``radius_fraction`` x the median camera distance (walls, far table) are
+    dropped, and (2) the dominant plane of what remains, if the cameras all lie on one side of
+    it, is the table the object stands on: its inliers and everything beyond it are dropped.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    centres, axes : (m, 3) float
+        Camera centres and unit viewing directions.
+    config : RegionConfig
+    seed : int
+
+    Returns
+    -------
+    mask : (n,) bool
+    """
+    points = np.asarray(points, float)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points: expected shape (n, 3), got {points.shape}")
+    focus = focus_point(centres, axes)
+    cam_dist = float(np.median(np.linalg.norm(centres - focus, axis=1)))
+    mask = np.linalg.norm(points - focus, axis=1) < config.radius_fraction * cam_dist
+    idx = np.flatnonzero(mask)
+    if len(idx) < 10:
+        return mask
+    rng = np.random.default_rng(seed)
+    P = points[idx]
+    tol = config.plane_tolerance * cam_dist
+    best, best_n = None, 0
+    for _ in range(config.plane_iterations):
+        a, b, c = P[rng.choice(len(P), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        if np.linalg.norm(n) < 1e-12:
+            continue
+        n /= np.linalg.norm(n)
+        cnt = int((np.abs((P - a) @ n) < tol).sum())
+        if cnt > best_n:
+            best, best_n = (n, a), cnt
+    if best is None or best_n < config.plane_min_fraction * len(P):
+        return mask
+    n, a = best
+    inl = np.abs((P - a) @ n) < tol
+    # refine the plane on its inliers
+    q = P[inl]
+    cen = q.mean(0)
+    n = np.linalg.svd(q - cen, full_matrices=False)[2][2]
+    side = (centres - cen) @ n
+    if not (np.all(side > 0) or np.all(side < 0)):
+        return mask  # cameras on both sides: not a support plane
+    n = n if np.median(side) > 0 else -n
+    height = (P - cen) @ n
+    mask[idx[height < 1.5 * tol]] = False
+    log.info("object region: %d of %d points (table plane removed: %d)", int(mask.sum()),
+             len(points), int(inl.sum()))
+    return mask
