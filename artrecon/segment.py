@@ -162,7 +162,7 @@ def _score(rot, trans, scales, pa, pb, thr2) -> tuple[np.ndarray, np.ndarray]:
     return scores, counts
 
 
-def _ransac_round(pa, pb, thr, size_a, scale, rng, cfg):
+def _ransac_round(pa, pb, thr, size_a, scale, min_size, rng, cfg):
     """Best hypothesis on the remaining matches; returns (Similarity | None, hypotheses drawn)."""
     m = len(pa)
     if m > cfg.score_subset:
@@ -170,6 +170,12 @@ def _ransac_round(pa, pb, thr, size_a, scale, rng, cfg):
         sa, sb = pa[sub], pb[sub]
     else:
         sa, sb = pa, pb
+    n_probe = min(len(sa), tol.PROBE_SIZE)
+    probe_a, probe_b = sa[:n_probe], sb[:n_probe]  # sa is in random order when subsampled
+    if len(sa) == m:
+        pick = rng.choice(m, size=n_probe, replace=False)
+        probe_a, probe_b = pa[pick], pb[pick]
+    w_min = min_size / m
     thr2 = thr * thr
     min_area2 = (cfg.min_triplet_spread * size_a) ** 4  # compare squared doubled areas
     best_score = -1.0
@@ -192,6 +198,14 @@ def _ransac_round(pa, pb, thr, size_a, scale, rng, cfg):
         if not np.any(ok):
             continue
         rot, trans, scales = rot[ok], trans[ok], scales[ok]
+        if len(sa) > 2 * len(probe_a):
+            # Preliminary test on a few matches: a hypothesis that cannot beat half the inlier
+            # ratio of the best so far (or of the smallest acceptable link) is not fully scored.
+            _, probe_counts = _score(rot, trans, scales, probe_a, probe_b, thr2)
+            keep = probe_counts >= 0.5 * max(best_count / len(sa), w_min) * len(probe_a)
+            if not np.any(keep):
+                continue
+            rot, trans, scales = rot[keep], trans[keep], scales[keep]
         scores, counts = _score(rot, trans, scales, sa, sb, thr2)
         j = int(np.argmax(scores))
         if scores[j] > best_score:
@@ -318,7 +332,9 @@ def segment_links(
     hypotheses: list[int] = []
     remaining = np.arange(n)
     while len(remaining) >= min_size and len(links) < config.max_links:
-        best, drawn = _ransac_round(pa[remaining], pb[remaining], thr, size_a, scale, rng, config)
+        best, drawn = _ransac_round(
+            pa[remaining], pb[remaining], thr, size_a, scale, min_size, rng, config
+        )
         hypotheses.append(drawn)
         if best is None:
             break
