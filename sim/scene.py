@@ -38,8 +38,9 @@ log = logging.getLogger(__name__)
 SCENES_DIR = Path(os.environ.get("ARTRECON_SCENES_DIR",
                                  Path(__file__).resolve().parents[1] / "scenes"))
 
-#: Files in the scenes folder that are not scenes themselves.
-NON_SCENE_FILES = frozenset({"stage.xml"})
+#: Files in the scenes folder that are not scenes themselves: the stage and its variant with the
+#: Panda arm (``stage_panda.xml``), included by scene files.
+NON_SCENE_FILES = frozenset({"stage.xml", "stage_panda.xml"})
 
 #: Name of the object's root body.
 OBJECT_BODY = "object"
@@ -52,6 +53,13 @@ CONFIG_PREFIX = "config_"
 #: written in decimal in the XML (e.g. 0.5236 for 30 deg) and MuJoCo stores ranges as float64,
 #: so only a representation error, far below any physical meaning, is forgiven.
 RANGE_TOLERANCE = 1e-9
+#: A joint whose two configuration values differ by no more than this did not move between the
+#: configurations (it is "static"; the reconstruction must not invent it). Values are written in
+#: decimal in the XML, so only a representation error is forgiven, as for RANGE_TOLERANCE.
+STATIC_TOLERANCE = 1e-9
+#: Slack when checking that the configurations satisfy a joint coupling (``<equality><joint>``):
+#: the polynomial is evaluated in float64 from decimal values, so a representation error only.
+COUPLING_TOLERANCE = 1e-9
 
 JOINT_TYPES = {int(mujoco.mjtJoint.mjJNT_HINGE): "revolute",
                int(mujoco.mjtJoint.mjJNT_SLIDE): "prismatic"}
@@ -137,6 +145,37 @@ class Joint:
         """``value_b - value_a``: the joint's motion between the configurations (rad or m)."""
         return self.value_b - self.value_a
 
+    @property
+    def static(self) -> bool:
+        """True if the joint did not move between the configurations (``|motion|`` at most
+        :data:`STATIC_TOLERANCE`): no relative motion of its child link to find."""
+        return abs(self.motion) <= STATIC_TOLERANCE
+
+
+@dataclass(frozen=True)
+class Coupling:
+    """Two object joints that move together (a MuJoCo ``<equality><joint>`` constraint):
+    ``joint1 = c0 + c1 q2 + c2 q2^2 + c3 q2^3 + c4 q2^4`` with ``q2`` the value of ``joint2``.
+
+    Attributes
+    ----------
+    name : str
+        Name of the equality constraint (``""`` if it has none).
+    joint1, joint2 : str
+        The driven and the driving joint.
+    polycoef : (5,) float
+        ``c0 .. c4``.
+    """
+
+    name: str
+    joint1: str
+    joint2: str
+    polycoef: tuple[float, ...]
+
+    def value(self, q2: float) -> float:
+        """``joint1``'s value implied by ``joint2`` at ``q2``."""
+        return float(sum(c * q2 ** k for k, c in enumerate(self.polycoef)))
+
 
 @dataclass(frozen=True, eq=False)
 class Scene:
@@ -154,6 +193,8 @@ class Scene:
         The object's links, base link (``"object"``) first, then in body order.
     joints : tuple of Joint
         The object's joints in model order.
+    couplings : tuple of Coupling
+        Pairs of object joints constrained to move together (empty for independent joints).
     """
 
     name: str
@@ -161,6 +202,12 @@ class Scene:
     model: mujoco.MjModel
     links: tuple[Link, ...]
     joints: tuple[Joint, ...]
+    couplings: tuple[Coupling, ...] = ()
+
+    @property
+    def moving_joints(self) -> tuple[Joint, ...]:
+        """The joints that move between the configurations (not :attr:`Joint.static`)."""
+        return tuple(j for j in self.joints if not j.static)
 
     def joint(self, name: str) -> Joint:
         """The object joint called ``name``."""
@@ -325,6 +372,39 @@ def _parse_configurations(model: mujoco.MjModel, path: Path,
     return values
 
 
+def _parse_couplings(model: mujoco.MjModel, path: Path, joint_ids: dict[str, int],
+                     configs: dict[str, dict[str, float]]) -> tuple[Coupling, ...]:
+    """Joint equality constraints between object joints, checked against both configurations
+    (a configuration that breaks a coupling would be pulled apart by the physics)."""
+    by_id = {j: name for name, j in joint_ids.items()}
+    out = []
+    for e in range(model.neq):
+        if int(model.eq_type[e]) != int(mujoco.mjtEq.mjEQ_JOINT):
+            continue
+        j1, j2 = int(model.eq_obj1id[e]), int(model.eq_obj2id[e])
+        if j1 not in by_id and (j2 < 0 or j2 not in by_id):
+            continue  # not about the object (e.g. the arm's gripper fingers)
+        name = _name(model, mujoco.mjtObj.mjOBJ_EQUALITY, e)
+        element = f'<equality><joint name="{name}">'
+        if j1 not in by_id or j2 not in by_id:
+            raise SceneError(
+                f"{path}: {element} couples an object joint with something else; fix: couple "
+                f"two object joints (joint1 and joint2 both among {sorted(joint_ids)})")
+        coupling = Coupling(name, by_id[j1], by_id[j2],
+                            tuple(float(c) for c in model.eq_data[e, :5]))
+        for config in CONFIGURATIONS:
+            want = coupling.value(configs[config][coupling.joint2])
+            have = configs[config][coupling.joint1]
+            if abs(want - have) > COUPLING_TOLERANCE:
+                raise SceneError(
+                    f"{path}: {element} requires {coupling.joint1} = {want:g} in configuration "
+                    f"{config!r} ({coupling.joint2} = {configs[config][coupling.joint2]:g}), but "
+                    f"config_{config}:{coupling.joint1} is {have:g}; fix: give values that "
+                    f"satisfy the coupling's polycoef")
+        out.append(coupling)
+    return tuple(out)
+
+
 def load_scene(name_or_path: str | os.PathLike) -> Scene:
     """Compile a scene and read its object's ground truth.
 
@@ -422,7 +502,8 @@ def load_scene(name_or_path: str | os.PathLike) -> Scene:
             value_a=configs["a"][name], value_b=configs["b"][name]))
     if not joints:
         log.warning("%s: the object has no joints (one rigid link)", path)
-    scene = Scene(path.stem, path, model, tuple(links), tuple(joints))
+    couplings = _parse_couplings(model, path, joint_ids, configs)
+    scene = Scene(path.stem, path, model, tuple(links), tuple(joints), couplings)
     log.debug("loaded scene %s: %d links, %d joints", path, len(links), len(joints))
     return scene
 

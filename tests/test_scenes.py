@@ -193,11 +193,17 @@ def test_ground_truth_matches_xml(name):
 
 @pytest.mark.parametrize("name", SCENES)
 def test_motion_is_big_enough_and_moves_the_child_link(name):
-    """Revolute 25-35 deg, prismatic 8-12 cm; the child link's pose changes by exactly that."""
+    """Revolute 25-35 deg, prismatic 8-12 cm; the child link's pose relative to its parent link
+    changes by exactly that (for a chain, e.g. scraper_truck, the parent moves too)."""
     scene = load_scene(name)
     pa, pb = scene.link_poses("a"), scene.link_poses("b")
     for j in scene.joints:
-        T_rel = pb[j.child] @ np.linalg.inv(pa[j.child])  # world motion of the child link
+        # Motion of the child in its parent's frame, expressed in the world at configuration A
+        # (where the joint's axis and point are given); a parent fixed to the world: identity.
+        Pa = pa[j.parent] if j.parent in pa else np.eye(4)
+        Pb = pb[j.parent] if j.parent in pb else np.eye(4)
+        local = (np.linalg.inv(Pb) @ pb[j.child]) @ np.linalg.inv(np.linalg.inv(Pa) @ pa[j.child])
+        T_rel = Pa @ local @ np.linalg.inv(Pa)
         if j.type == "revolute":
             assert np.deg2rad(25) <= abs(j.motion) <= np.deg2rad(35)
             rotvec = Rotation.from_matrix(T_rel[:3, :3]).as_rotvec()
@@ -370,7 +376,9 @@ def _read_obj(path: Path):
 OBJS = sorted(ASSETS.glob("*.obj"))
 PNGS = sorted(ASSETS.glob("*.png"))
 OBJECT_PARTS = ("pliers_fixed", "pliers_moving", "truck_chassis", "truck_bed", "cabinet",
-                "drawer")
+                "drawer", "scissors_fixed", "scissors_moving", "barrett_palm", "barrett_finger1",
+                "barrett_finger2", "scraper_chassis", "scraper_boom", "scraper_blade",
+                "hinged_cabinet", "hinged_cabinet_door", "hinged_cabinet_drawer")
 
 
 @pytest.mark.parametrize("obj", OBJS, ids=lambda p: p.stem)
@@ -455,5 +463,7 @@ def test_make_assets_reproduces_the_committed_assets(tmp_path):
 
 
 def test_assets_are_small():
+    # About 5 MB for the stage and the first three scenes, 3.2 MB for the four of issue 10
+    # (scissors, barrett_hand, scraper_truck, cabinet); 10 MB keeps the checkout light.
     total = sum(p.stat().st_size for p in ASSETS.iterdir())
-    assert total < 6e6, f"assets take {total / 1e6:.1f} MB"
+    assert total < 10e6, f"assets take {total / 1e6:.1f} MB"
