@@ -220,7 +220,8 @@ def _check_out_dir(out_dir: Path, overwrite: bool) -> Path:
 
 def capture(scene, config: str, out_dir, *, n_views: int = 36,
             elevations_deg: tuple[float, ...] = (20.0, 40.0, 60.0),
-            top_elevations_deg: tuple[float, ...] = (75.0,), fill: float = 0.6, seed: int = 0,
+            top_elevations_deg: tuple[float, ...] = (70.0,), fill: float = 0.6,
+            top_fill: float = 0.8, seed: int = 0,
             free_camera_fallback: bool = False, overwrite: bool = False,
             progress: bool = True) -> CaptureResult:
     """Capture one image set of a scene in one configuration of its object.
@@ -236,7 +237,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
     n_views : int
         Views per full ring (36 keeps neighbours 10 degrees apart, as the method needs); rings near
         the top get proportionally fewer.
-    elevations_deg, top_elevations_deg, fill
+    elevations_deg, top_elevations_deg, fill, top_fill
         Ring layout, see :class:`sim.views.ViewPlanConfig`.
     seed : int
         Seeds each ring's first azimuth and the IK restarts. Same arguments, same files.
@@ -256,7 +257,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
         raise ValueError(f"unknown configuration {config!r}; choose one of {CONFIGS}")
     plan_cfg = views.ViewPlanConfig(views_per_ring=n_views, elevations_deg=tuple(elevations_deg),
                                     top_elevations_deg=tuple(top_elevations_deg), fill=fill,
-                                    seed=seed)
+                                    top_fill=top_fill, seed=seed)
     out_dir = _check_out_dir(Path(out_dir), overwrite)
     t_start = time.perf_counter()
     sc = _load(scene)
@@ -270,9 +271,10 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
     joints_config = sc.configuration(config)
     centre, radius = views.object_bounding_sphere(model, data)
     distance = views.ring_distance(radius, K, width, height, fill)
+    top_distance = views.ring_distance(radius, K, width, height, top_fill)
+    planned = views.plan_views(centre, distance, plan_cfg, top_distance)
     plan = views.ViewPlan(centre=centre, radius=radius, distance=distance,
-                          views=views.order_for_rail(views.plan_views(centre, distance, plan_cfg),
-                                                     kin))
+                          top_distance=top_distance, views=views.order_for_rail(planned, kin))
     log.info("%s config %s: %d views on %d rings at %.3f m around the object (radius %.3f m)",
              sc.name, config, len(plan.views), len(views.ring_sizes(plan_cfg)), distance, radius)
 
@@ -353,7 +355,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
                 "file": name,
                 "view": {"ring": view.ring, "azimuth_deg": float(np.rad2deg(view.azimuth)),
                          "elevation_deg": float(np.rad2deg(view.elevation)),
-                         "roll_deg": view.roll_deg},
+                         "distance_m": view.distance, "roll_deg": view.roll_deg},
                 "T_world_camera": _as_list(T_render),
                 "fk_position_error_m": dp,
                 "fk_rotation_error_rad": dr,
@@ -381,7 +383,8 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
         report = {
             "scene": sc.name, "config": config, "seed": seed, "views_per_ring": n_views,
             "elevations_deg": list(elevations_deg), "top_elevations_deg": list(top_elevations_deg),
-            "fill": fill, "ring_distance_m": distance,
+            "fill": fill, "top_fill": top_fill, "ring_distance_m": distance,
+            "top_ring_distance_m": top_distance,
             "planned": len(plan.views), "captured": len(to_take),
             "free_camera_images": free, "unreachable": unreachable,
         }

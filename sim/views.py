@@ -43,19 +43,23 @@ class ViewPlanConfig:
     """views on each ring of `elevations_deg` (36 keeps neighbours 10 degrees apart)"""
     elevations_deg: tuple[float, ...] = (20.0, 40.0, 60.0)
     """elevations (degrees above the horizontal plane through the object's centre) of full rings"""
-    top_elevations_deg: tuple[float, ...] = (75.0,)
+    top_elevations_deg: tuple[float, ...] = (70.0,)
     """rings near the top; they get fewer views, as many as keep neighbours as close as on the
     full rings"""
     fill: float = 0.6
     """diameter of the object's bounding sphere as a share of the shorter image side"""
+    top_fill: float = 0.8
+    """the same for the top rings, which are planned closer: the arm on its rail reaches less
+    high than far (at fill 0.6 the truck's 70 degree ring is out of reach)"""
     seed: int = 0
     """seeds the azimuth of each ring's first view and the IK restarts"""
 
     def __post_init__(self):
         if self.views_per_ring < 3:
             raise ValueError(f"views_per_ring must be at least 3, got {self.views_per_ring}")
-        if not 0.05 <= self.fill <= 1.0:
-            raise ValueError(f"fill must lie in [0.05, 1], got {self.fill}")
+        for name in ("fill", "top_fill"):
+            if not 0.05 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must lie in [0.05, 1], got {getattr(self, name)}")
         for e in (*self.elevations_deg, *self.top_elevations_deg):
             if not -80.0 <= e <= 85.0:
                 raise ValueError(f"ring elevations must lie in [-80, 85] degrees, got {e}")
@@ -75,6 +79,8 @@ class View:
     """radians about world z from world x, seen from the object centre"""
     elevation: float
     """radians above the horizontal plane through the object centre"""
+    distance: float
+    """camera centre to object centre (m)"""
     T_world_camera: np.ndarray
     """(4, 4) target camera pose, OpenCV convention, looking at the object centre"""
     q: np.ndarray | None = None
@@ -98,7 +104,9 @@ class ViewPlan:
     radius: float
     """bounding-sphere radius (m)"""
     distance: float
-    """camera centre to object centre (m)"""
+    """camera centre to object centre on the full rings (m)"""
+    top_distance: float
+    """the same on the top rings (m)"""
     views: list[View] = field(default_factory=list)
 
     @property
@@ -184,20 +192,28 @@ def ring_sizes(config: ViewPlanConfig) -> list[tuple[float, int]]:
     return out
 
 
-def plan_views(centre, distance: float, config: ViewPlanConfig) -> list[View]:
-    """Target camera poses on rings around ``centre`` (not yet checked against the arm)."""
+def plan_views(centre, distance: float, config: ViewPlanConfig,
+               top_distance: float | None = None) -> list[View]:
+    """Target camera poses on rings around ``centre`` (not yet checked against the arm).
+
+    ``distance`` is the radius of the full rings, ``top_distance`` (default ``distance``) that of
+    the top rings.
+    """
     centre = np.asarray(centre, dtype=float)
+    n_full = len(config.elevations_deg)
     if centre.shape != (3,):
         raise ValueError(f"expected centre of shape (3,), got {centre.shape}")
     rng = np.random.default_rng(config.seed)
     views = []
     for ring, (el, n) in enumerate(ring_sizes(config)):
         az0 = rng.uniform(0.0, 2.0 * np.pi / n)
+        dist = distance if ring < n_full or top_distance is None else top_distance
         for k in range(n):
             az = az0 + 2.0 * np.pi * k / n
-            eye = centre + distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az),
+            eye = centre + dist * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az),
                                                 np.sin(el)])
             views.append(View(index=len(views), ring=ring, azimuth=float(az), elevation=float(el),
+                              distance=float(dist),
                               T_world_camera=robot.look_at_pose(eye, centre)))
     return views
 

@@ -236,7 +236,8 @@ def test_every_planned_view_of_the_bundled_scenes_is_reachable(scene, config):
     centre, radius = views.object_bounding_sphere(model, data)
     cfg = views.ViewPlanConfig()
     distance = views.ring_distance(radius, K, w, h, cfg.fill)
-    plan = views.order_for_rail(views.plan_views(centre, distance, cfg), kin)
+    top = views.ring_distance(radius, K, w, h, cfg.top_fill)
+    plan = views.order_for_rail(views.plan_views(centre, distance, cfg, top), kin)
     views.solve_views(model, data, kin, plan)
     bad = [(v.ring, round(np.rad2deg(v.azimuth)), v.reason) for v in plan if not v.reachable]
     assert not bad, f"{len(bad)} of {len(plan)} views unreachable: {bad[:3]}"
