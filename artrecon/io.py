@@ -11,7 +11,8 @@ is opened here (in particular never ``ground_truth/``).
     {"K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], "width": W, "height": H,
      "images": [{"name": "view_000.png", "T_world_camera": [[...4x4...]]}, ...]}
 
-``images`` may also be a mapping ``name -> 4x4``.
+``images`` may also be a mapping ``name -> 4x4``; ``"file"`` is accepted for ``"name"``, and an
+image whose ``T_world_camera`` is null has no known pose.
 """
 
 from __future__ import annotations
@@ -178,7 +179,7 @@ def load_cameras_json(path: str | Path) -> tuple[Intrinsics, dict[str, np.ndarra
     -------
     intrinsics : Intrinsics
     T_world_camera : dict of str to (4, 4) float
-        Camera pose per image name (OpenCV convention).
+        Camera pose per image name (OpenCV convention); images without a known pose are absent.
     """
     path = Path(path)
     try:
@@ -195,6 +196,8 @@ def load_cameras_json(path: str | Path) -> tuple[Intrinsics, dict[str, np.ndarra
     poses = {}
     for i, item in enumerate(items):
         name = item.get("name") or item.get("file")
+        if name is not None and item.get("T_world_camera") is None:
+            continue  # pose unknown for this image (e.g. a view the arm could not reach)
         T = np.asarray(item.get("T_world_camera"), dtype=float)
         if name is None or T.shape != (4, 4):
             raise InputError(f"camera file {path}: entry {i} needs 'name' and a 4x4 "

@@ -292,15 +292,21 @@ def _triangulate_known_poses(image_set: ImageSet, database_path: Path, out_dir: 
                              intrinsics: Intrinsics, poses: dict[str, np.ndarray],
                              config: SfMConfig, seed: int) -> pycolmap.Reconstruction:
     missing = [n for n in image_set.names if n not in poses]
+    known = len(image_set.names) - len(missing)
+    if known < 3:
+        raise ReconstructionError(f"camera poses known for only {known}"
+                                  f" of {len(image_set.names)} images of {image_set.image_dir}; "
+                                  "give a pose per image or run without poses (SfM)")
     if missing:
-        raise ReconstructionError(f"camera poses missing for {len(missing)} image(s) of "
-                                  f"{image_set.image_dir} (e.g. {missing[0]}); give a pose for "
-                                  "every image or run without poses")
+        log.warning("%s: no pose for %d image(s) (e.g. %s); they are left out of the "
+                    "known-pose triangulation", image_set.image_dir, len(missing), missing[0])
     rec = pycolmap.Reconstruction()
     with pycolmap.Database.open(database_path) as db:
         for cam in db.read_all_cameras():
             rec.add_camera_with_trivial_rig(cam)
         for img in db.read_all_images():
+            if img.name not in poses:
+                continue
             T_cw = np.linalg.inv(poses[img.name])
             pose = pycolmap.Rigid3d(T_cw[:3, :])
             new = pycolmap.Image(name=img.name, camera_id=img.camera_id, image_id=img.image_id)
