@@ -890,29 +890,38 @@ def manipulate(scene: Scene | str, estimate: JointEstimate, amount: float, *,
 
 # --- command line -----------------------------------------------------------------------------
 
-#: Fixed scene camera of the image strip: looking at the table centre from here (m).
-STRIP_EYE = np.array([0.2, -1.1, 1.25])
+#: Scene camera of the image strip: looks at STRIP_TARGET from STRIP_DISTANCE, STRIP_ELEVATION up,
+#: from the side (90 degrees in azimuth from the grasp point), so neither the arm nor the object
+#: hides the gripper; fixed for the whole strip.
 STRIP_TARGET = np.array([0.0, 0.0, 0.55])
+STRIP_DISTANCE = 1.0
+STRIP_ELEVATION = np.deg2rad(30.0)
 STRIP_FRAMES = 6
 
 
-def render_strip(world: _World, frames: list, path: Path, n: int = STRIP_FRAMES) -> Path:
-    """Render ``n`` snapshots from the fixed scene camera side by side into one PNG."""
+def render_strip(world: _World, result: ManipulationResult, path: Path,
+                 n: int = STRIP_FRAMES) -> Path:
+    """Render ``n`` snapshots of the approach and motion side by side into one PNG."""
     from PIL import Image
 
     from sim import render
 
+    frames = [f for f in result.frames if f[1] != "travel"] or result.frames
     if not frames:
         raise ValueError("no frames recorded: run manipulate with record_every")
-    K = np.array([[450.0, 0, 319.5], [0, 450.0, 239.5], [0, 0, 1]])
-    T = robot.look_at_pose(STRIP_EYE, STRIP_TARGET)
+    g = np.asarray(result.grasp_point)
+    az = np.arctan2(g[1], g[0]) + np.pi / 2
+    eye = STRIP_TARGET + STRIP_DISTANCE * np.array([
+        np.cos(STRIP_ELEVATION) * np.cos(az), np.cos(STRIP_ELEVATION) * np.sin(az),
+        np.sin(STRIP_ELEVATION)])
+    K = np.array([[554.26, 0, 319.5], [0, 554.26, 239.5], [0, 0, 1]])
+    T = robot.look_at_pose(eye, STRIP_TARGET)
     r = render.MjRenderer(world.model)
     data = mujoco.MjData(world.model)
     picks = np.linspace(0, len(frames) - 1, n).round().astype(int)
     tiles = []
     for i in picks:
-        _, _, qpos = frames[i]
-        data.qpos[:] = qpos
+        data.qpos[:] = frames[i][2]
         mujoco.mj_forward(world.model, data)
         tiles.append(r.render(data, K, T, 640, 480).color)
     Image.fromarray(np.concatenate(tiles, axis=1)).save(path)
@@ -970,7 +979,7 @@ def main(argv=None) -> int:
                                else f"estimated axis from {args.model}")
     out["created"] = time.strftime("%Y-%m-%dT%H:%M:%S")
     (args.out / "manipulation.json").write_text(json.dumps(out, indent=2) + "\n")
-    strip = render_strip(world, res.frames, args.out / "strip.png")
+    strip = render_strip(world, res, args.out / "strip.png")
     print(json.dumps({k: out[k] for k in ("scene", "joint", "requested_display",  # noqa: T201
                                           "achieved_display", "peak_force", "grasp_hidden",
                                           "grasp_visibility")}, indent=2))
