@@ -125,6 +125,10 @@ MAX_VOXELS_PER_AXIS = 160
 #: empty 3 x 3 voxel patches, which one iteration cannot close).
 CLOSING_ITERATIONS = 2
 
+#: Most faces of a visual mesh. MuJoCo's STL reader refuses more than 200000; a link whose
+#: surface needs more at the chosen voxel size gets a coarser voxel (with a warning).
+MAX_VISUAL_FACES = 150_000
+
 #: Taubin smoothing of the voxel surface: iterations and its two factors (lamb > 0 smooths,
 #: nu slightly larger undoes the shrinking); 10 removes the one-voxel staircase, little more.
 SMOOTHING_ITERATIONS = 10
@@ -677,6 +681,14 @@ def build_twin(model: ArticulatedModel, config: ExportConfig | None = None,
         pts = pts_base[k] - origins[k]
         h = config.voxel_size if config.voxel_size is not None else auto_voxel_size(pts)
         visual, occ, grid_origin = voxel_surface(pts, h)
+        while len(visual.faces) > MAX_VISUAL_FACES:
+            # faces grow as 1/h^2: coarsen just enough (plus 5%) and try again
+            h_new = h * 1.05 * np.sqrt(len(visual.faces) / MAX_VISUAL_FACES)
+            log.warning("link %r: %d faces at voxel %.4g m exceed %d (MuJoCo's mesh limit); "
+                        "using voxel %.4g m", lk.name, len(visual.faces), h, MAX_VISUAL_FACES,
+                        h_new)
+            h = h_new
+            visual, occ, grid_origin = voxel_surface(pts, h)
         mass, com, inertia = voxel_inertia(occ, grid_origin, h, config.density)
         hulls = collision_hulls(pts, config.collision_clusters, h, seed=config.seed + k)
         if lk.colours is not None:
