@@ -1,32 +1,47 @@
-"""The arm: PUMA 560 kinematics (pinocchio) on the stage's circular rail, in a MuJoCo scene's frame.
+"""The arm: its kinematics (pinocchio) on the stage's circular rail, in a MuJoCo scene's frame.
 
-The arm is defined once, by its standard Denavit-Hartenberg table (:data:`PUMA560_DH`, sources in
-``robots/puma560/README.md``). ``robots/puma560/generate_mjcf.py`` writes the MuJoCo model
-from these constants; :func:`load_arm_kinematics` builds the pinocchio model from the same table,
-and reads from the compiled MuJoCo scene only what the scene decides: where the rail is, where the
-arm is mounted on the rail carriage, and where the camera and the grasp site sit on the flange.
-The tests check that pinocchio, MuJoCo and the plain DH product agree.
+Which arm a scene uses is the scene's choice: its stage names an :class:`ArmSpec` in
+``<custom><text name="artrecon:arm" data="panda"/>`` (no such text: the PUMA 560), and
+:func:`arm_spec` / :func:`load_arm_kinematics` pick it up. Two kinds of arm:
 
-Frames (all ``T_a_b``, metres): ``frame0`` .. ``frame6`` are the standard DH frames (``frame0`` at
-the shoulder, ``frame6`` at the wrist centre, z along the approach direction), ``flange`` is
-``frame6``, ``camera`` is the wrist camera in the OpenCV convention, ``grasp`` the grasp site
+- the PUMA 560, defined once by its standard Denavit-Hartenberg table (:data:`PUMA560_DH`,
+  sources in ``robots/puma560/README.md``); ``robots/puma560/generate_mjcf.py`` writes the
+  MuJoCo model from these constants and the pinocchio model is built from the same table;
+- arms from a URDF (:data:`PANDA`, the Franka Emika Panda of example-robot-data,
+  ``robots/panda/``): ``robots/panda/generate_mjcf.py`` writes the MuJoCo model from the URDF and
+  the pinocchio model is built from the same file (``pinocchio.buildModelFromUrdf``).
+
+Either way :func:`load_arm_kinematics` reads from the compiled MuJoCo scene only what the scene
+decides: where the rail is, where the arm is mounted on the rail carriage, and where the camera and
+the grasp site sit on the flange. The tests check that pinocchio and MuJoCo (and, for the PUMA,
+the plain DH product) agree.
+
+Frames (all ``T_a_b``, metres): for the PUMA ``frame0`` .. ``frame6`` are the standard DH frames
+(``frame0`` at the shoulder, ``frame6`` at the wrist centre, z along the approach direction) and
+``flange`` is ``frame6``; for a URDF arm ``frame0`` is the arm's base link and ``frame<i>`` the
+frame of its joint i (the URDF child link of joint i), ``flange`` the last joint's frame. For
+every arm ``camera`` is the wrist camera in the OpenCV convention, ``grasp`` the grasp site
 between the fingertips, ``rail`` the rail carriage.
 
-Joint vector ``q`` : (7,) float, radians, order ``(rail, joint1, ..., joint6)``; MuJoCo takes it
-through ``data.qpos[qpos_indices(model, kin)]`` and the position actuators through
-``data.ctrl[actuator_indices(model, kin)]``.
+Joint vector ``q`` : (1 + n,) float, radians, order ``(rail, joint1, ..., joint<n>)`` (n = 6 for the
+PUMA, 7 for the Panda); MuJoCo takes it through ``data.qpos[qpos_indices(model, kin)]`` and the
+position actuators through ``data.ctrl[actuator_indices(model, kin)]``.
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from sim.camera import T_GL_CV
 
 log = logging.getLogger(__name__)
+
+#: The repository root: ArmSpec.urdf paths are relative to it.
+ROOT = Path(__file__).resolve().parents[1]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -116,9 +131,68 @@ class ArmSpec:
     home: tuple[float, ...] = field(default=(0.0, 0.72, -3.17, 0.86, 0.25, -2.25))
     """home configuration of the arm joints (rad), the MJCF's ``home`` keyframe: on the stage,
     with the rail at 0, the wrist camera looks at the table centre from 0.45 m, 40 degrees up"""
+    urdf: str | None = None
+    """URDF of the arm, relative to the repository root; None: the kinematics come from ``dh``"""
+    urdf_joints: tuple[str, ...] = ()
+    """the URDF's names of ``joints`` (same order), for a URDF arm"""
+    wrist_flip: bool = True
+    """the arm has a spherical wrist (joints 4-6) whose flipped solution (q4 +- pi, -q5,
+    q6 +- pi) solve_view_ik tries before random restarts"""
 
 
 PUMA560 = ArmSpec(name="puma560", prefix="puma_", camera="wrist_cam", grasp_site="grasp")
+
+#: Pose of the Panda's wrist camera (OpenCV convention) in its hand frame (URDF ``panda_hand``,
+#: z along the fingers, y the direction the fingers open): 50 mm off the hand's centre along -x
+#: (just outside the hand's 32 mm half-thickness) and 40 mm forward, looking along z; image
+#: "down" (+y) points at the gripper, whose fingertips stay 35 deg off the optical axis, below the
+#: image's lower edge (23.4 deg).
+PANDA_T_HAND_CAMERA = np.array([
+    [0.0, 1.0, 0.0, -0.050],
+    [-1.0, 0.0, 0.0, 0.0],
+    [0.0, 0.0, 1.0, 0.040],
+    [0.0, 0.0, 0.0, 1.0],
+])
+#: Grasp site in the Panda's hand frame: the URDF's ``panda_hand_tcp``, between the fingertips.
+PANDA_GRASP_OFFSET = np.array([0.0, 0.0, 0.1034])
+#: The Panda's fingers are welded open at this travel each (the URDF's upper limit, m).
+PANDA_FINGER_OPENING = 0.04
+
+#: Franka Emika Panda on the rail, kinematics from example-robot-data's URDF (robots/panda).
+PANDA = ArmSpec(
+    name="panda", prefix="panda_", camera="wrist_cam", grasp_site="grasp",
+    joints=tuple(f"joint{i}" for i in range(1, 8)), base_body="link0", flange_body="link7",
+    dh=(), qlim_deg=(), shoulder_height=0.0,
+    home=(-1.219, 0.726, 1.422, -1.85, -1.43, 2.6, -1.471),
+    urdf="robots/panda/panda.urdf", urdf_joints=tuple(f"panda_joint{i}" for i in range(1, 8)),
+    wrist_flip=False)
+
+#: Arms a scene can choose, by name.
+ARMS: dict[str, ArmSpec] = {PUMA560.name: PUMA560, PANDA.name: PANDA}
+#: Name of the MJCF ``<custom><text>`` that chooses the arm (its data: a key of ARMS).
+ARM_TEXT = "artrecon:arm"
+
+
+def arm_spec(model) -> ArmSpec:
+    """The arm a compiled scene chooses: its ``<custom><text name="artrecon:arm" data=NAME/>``,
+    or the PUMA 560 if it has none.
+
+    Raises
+    ------
+    ValueError
+        The text names an arm that is not in :data:`ARMS`.
+    """
+    import mujoco
+
+    t = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXT, ARM_TEXT)
+    if t < 0:
+        return PUMA560
+    adr, size = int(model.text_adr[t]), int(model.text_size[t])
+    name = bytes(model.text_data[adr:adr + size]).split(b"\0")[0].decode().strip()
+    if name not in ARMS:
+        raise ValueError(f'<custom><text name="{ARM_TEXT}" data="{name}"/> names an unknown arm; '
+                         f"fix: use one of {sorted(ARMS)}")
+    return ARMS[name]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -469,19 +543,21 @@ class ArmKinematics:
         return float(np.clip(rail, lo, hi))
 
 
-def load_arm_kinematics(model, spec: ArmSpec = PUMA560) -> ArmKinematics:
+def load_arm_kinematics(model, spec: ArmSpec | None = None) -> ArmKinematics:
     """Pinocchio model of the rail and arm of a compiled MuJoCo scene.
 
-    The arm's kinematics come from ``spec.dh`` (not from the MJCF); from the MuJoCo model come the
-    rail joint (axis, position, range), the pose of the arm's base body on the carriage, the joint
-    limits, the camera and grasp site placements on the flange body, and the body inertias.
+    The arm's kinematics come from ``spec.dh`` or ``spec.urdf`` (not from the MJCF); from the
+    MuJoCo model come the rail joint (axis, position, range), the pose of the arm's base body on
+    the carriage, the camera and grasp site placements on the flange body, and the body inertias.
+    Joint limits: the DH arm's ``spec.qlim_deg``, the URDF arm's URDF.
 
     Parameters
     ----------
     model : mujoco.MjModel
         A compiled scene that contains ``spec.rail_joint`` and the arm attached with
         ``spec.prefix``.
-    spec : ArmSpec
+    spec : ArmSpec, optional
+        Default: the arm the scene chooses (:func:`arm_spec`).
 
     Returns
     -------
@@ -490,6 +566,8 @@ def load_arm_kinematics(model, spec: ArmSpec = PUMA560) -> ArmKinematics:
     import mujoco
     import pinocchio as pin
 
+    if spec is None:
+        spec = arm_spec(model)
     obj = mujoco.mjtObj
     p = spec.prefix
     rail_j = _mj_id(model, obj.mjOBJ_JOINT, spec.rail_joint, "rail joint")
@@ -560,7 +638,38 @@ def load_arm_kinematics(model, spec: ArmSpec = PUMA560) -> ArmKinematics:
                                            pin.FrameType.OP_FRAME))
     frames["frame0"] = pm.addFrame(pin.Frame("frame0", jid, se3(T_railjoint_frame0),
                                              pin.FrameType.OP_FRAME))
-    parent, placement = jid, T_railjoint_frame0
+    T_link_camgl = _pose(_quat_to_matrix(model.cam_quat[cam]), model.cam_pos[cam].copy())
+    T_link_site = _pose(_quat_to_matrix(model.site_quat[site]), model.site_pos[site].copy())
+    if spec.urdf is not None:
+        add_chain = _add_urdf_chain
+    else:
+        add_chain = _add_dh_chain
+    jid, T_joint_flange, T_joint_body = add_chain(pm, jid, T_railjoint_frame0, spec, model, arm_j,
+                                                  frames, se3, inertia)
+    # Camera and site placements are read relative to the MuJoCo flange body, whose frame is the
+    # last joint's frame turned by its angle (for the PUMA: DH frame 6 up to the last row's
+    # constant part, identity since alpha6 = a6 = d6 = 0).
+    frames["flange"] = pm.addFrame(pin.Frame("flange", jid, se3(T_joint_flange),
+                                             pin.FrameType.OP_FRAME))
+    frames["camera"] = pm.addFrame(pin.Frame(
+        "camera", jid, se3(T_joint_body @ T_link_camgl @ T_GL_CV), pin.FrameType.OP_FRAME))
+    frames["grasp"] = pm.addFrame(pin.Frame(
+        "grasp", jid, se3(T_joint_body @ T_link_site), pin.FrameType.OP_FRAME))
+
+    names = (spec.rail_joint, *(p + j for j in spec.joints))
+    p0 = (T_world_railjoint @ T_railjoint_frame0)[:3, 3]
+    az0 = float(np.arctan2(p0[1], p0[0]))
+    return ArmKinematics(pm, names, frames, spec, az0)
+
+
+def _add_dh_chain(pm, parent, placement, spec, model, arm_j, frames, se3, inertia):
+    """Append the DH arm's joints to ``pm`` after joint ``parent`` (DH frame 0 at ``placement``
+    in that joint's frame); returns the last joint's id, the flange (DH frame 6) and the MuJoCo
+    flange body in its frame."""
+    import pinocchio as pin
+
+    p = spec.prefix
+    jid = parent
     for i, (link, j) in enumerate(zip(spec.dh, arm_j, strict=True)):
         lo, hi = np.deg2rad(spec.qlim_deg[i])
         jid = pm.addJoint(parent, pin.JointModelRZ(), se3(placement), p + spec.joints[i],
@@ -571,23 +680,49 @@ def load_arm_kinematics(model, spec: ArmSpec = PUMA560) -> ArmKinematics:
         frames[f"frame{i + 1}"] = pm.addFrame(pin.Frame(f"frame{i + 1}", jid, se3(T_i),
                                                         pin.FrameType.OP_FRAME))
         parent, placement = jid, T_i
-    # The flange body's frame is DH frame 6 turned by q6, i.e. DH frame 6 itself (alpha6 = a6 = d6
-    # = 0 for the PUMA); camera and site placements are read relative to it.
-    T_flange_link6 = np.linalg.inv(dh_transform(spec.dh[-1], 0.0))
-    T_link6_camgl = _pose(_quat_to_matrix(model.cam_quat[cam]), model.cam_pos[cam].copy())
-    T_link6_site = _pose(_quat_to_matrix(model.site_quat[site]), model.site_pos[site].copy())
-    last_T = dh_transform(spec.dh[-1], 0.0)
-    frames["flange"] = pm.addFrame(pin.Frame("flange", jid, se3(last_T), pin.FrameType.OP_FRAME))
-    frames["camera"] = pm.addFrame(pin.Frame(
-        "camera", jid, se3(last_T @ T_flange_link6 @ T_link6_camgl @ T_GL_CV),
-        pin.FrameType.OP_FRAME))
-    frames["grasp"] = pm.addFrame(pin.Frame(
-        "grasp", jid, se3(last_T @ T_flange_link6 @ T_link6_site), pin.FrameType.OP_FRAME))
+    # DH frame 6 in joint 6's frame; MuJoCo's flange body is joint 6's frame itself (identity).
+    return jid, dh_transform(spec.dh[-1], 0.0), np.eye(4)
 
-    names = (spec.rail_joint, *(p + j for j in spec.joints))
-    p0 = (T_world_railjoint @ T_railjoint_frame0)[:3, 3]
-    az0 = float(np.arctan2(p0[1], p0[0]))
-    return ArmKinematics(pm, names, frames, spec, az0)
+
+def _add_urdf_chain(pm, parent, placement, spec, model, arm_j, frames, se3, inertia):
+    """Append the URDF arm's joints ``spec.urdf_joints`` (a serial chain from the URDF's root
+    link, which is the MJCF's base body) to ``pm`` after joint ``parent``, the root link at
+    ``placement`` in that joint's frame; returns the last joint's id, the flange and the MuJoCo
+    flange body in its frame (both identity: the flange body is the last joint's child link)."""
+    import pinocchio as pin
+
+    path = ROOT / spec.urdf
+    if not path.is_file():
+        raise ValueError(f"{path}: URDF of arm {spec.name!r} not found; regenerate it with "
+                         f"robots/{spec.name}/generate_mjcf.py")
+    um = pin.buildModelFromUrdf(str(path))
+    if len(spec.urdf_joints) != len(spec.joints):
+        raise ValueError(f"ArmSpec {spec.name!r}: {len(spec.joints)} joints but "
+                         f"{len(spec.urdf_joints)} urdf_joints; give one URDF name per joint")
+    jid, previous = parent, 0
+    for i, (uname, j) in enumerate(zip(spec.urdf_joints, arm_j, strict=True)):
+        if not um.existJointName(uname):
+            raise ValueError(f"{path}: no joint {uname!r} (ArmSpec {spec.name!r}); its joints "
+                             f"are {list(um.names)[1:]}")
+        uj = um.getJointId(uname)
+        if um.parents[uj] != previous:
+            raise ValueError(f"{path}: joint {uname!r} does not follow {um.names[previous]!r}; "
+                             f"urdf_joints must be a serial chain from the root link")
+        jm = um.joints[uj]
+        if jm.nq != 1:
+            raise ValueError(f"{path}: joint {uname!r} has {jm.nq} coordinates; only 1-dof "
+                             f"joints are supported")
+        T = placement @ um.jointPlacements[uj].homogeneous
+        jid = pm.addJoint(jid, jm, se3(T), spec.prefix + spec.joints[i],
+                          np.array(um.effortLimit[jm.idx_v:jm.idx_v + 1]),
+                          np.array(um.velocityLimit[jm.idx_v:jm.idx_v + 1]),
+                          np.array(um.lowerPositionLimit[jm.idx_q:jm.idx_q + 1]),
+                          np.array(um.upperPositionLimit[jm.idx_q:jm.idx_q + 1]))
+        pm.appendBodyToJoint(jid, inertia(int(model.jnt_bodyid[j])), pin.SE3.Identity())
+        frames[f"frame{i + 1}"] = pm.addFrame(pin.Frame(f"frame{i + 1}", jid, pin.SE3.Identity(),
+                                                        pin.FrameType.OP_FRAME))
+        placement, previous = np.eye(4), uj
+    return jid, np.eye(4), np.eye(4)
 
 
 def _rigidly_on(model, body: int, root: int) -> bool:
@@ -661,17 +796,21 @@ def solve_view_ik(kin: ArmKinematics, T_world_camera, q0=None, *, restarts: int 
     rail_axis_point = kin.frame_pose(np.zeros(kin.nq), "rail")[:3, 3]
     rel = T[:3, 3] - rail_axis_point
     start = np.zeros(kin.nq)
-    start[1:] = PUMA560_VIEW_SEED if q0 is None else np.asarray(q0, dtype=float)[1:]
+    start[1:] = kin.spec.home if q0 is None else np.asarray(q0, dtype=float)[1:]
     start[0] = kin.rail_angle_for_azimuth(np.arctan2(rel[1], rel[0]))
-    # The PUMA's spherical wrist reaches the same orientation with the wrist flipped
-    # (q4 +- pi, -q5, q6 +- pi): try both from the guess before random restarts, so that a guess
-    # whose wrist runs into the joint 4 limit does not send the solver to a far-off branch.
-    flipped = start.copy()
-    flipped[4] += -np.pi if start[4] > 0 else np.pi
-    flipped[5] = -start[5]
-    flipped[6] += -np.pi if start[6] > 0 else np.pi
+    attempts = [(start, 0)]
+    if kin.spec.wrist_flip:
+        # A spherical wrist (the PUMA's) reaches the same orientation with the wrist flipped
+        # (q4 +- pi, -q5, q6 +- pi): try both from the guess before random restarts, so that a
+        # guess whose wrist runs into the joint 4 limit does not send the solver far off.
+        flipped = start.copy()
+        flipped[4] += -np.pi if start[4] > 0 else np.pi
+        flipped[5] = -start[5]
+        flipped[6] += -np.pi if start[6] > 0 else np.pi
+        attempts.append((flipped, 0))
+    attempts.append((start, restarts))
     result = None
-    for guess, n_restarts in ((start, 0), (flipped, 0), (start, restarts)):
+    for guess, n_restarts in attempts:
         attempt = kin.solve_ik(T, "camera", guess, locked=(0,), restarts=n_restarts, seed=seed)
         if result is None or attempt.success or (
                 attempt.position_error + attempt.rotation_error
