@@ -7,7 +7,9 @@ Everything is written in metres: model points are multiplied by ``ArticulatedMod
 registered) is exported in model units as if they were metres, with a warning in the log and a
 comment in the file; its masses and inertias then mean nothing.
 
-The twin's base frame is the model frame (configuration A) in metres. With
+The twin's base frame is the model frame (configuration A) in metres: after
+``artrecon.register.apply_registration`` (or a reconstruction from known camera poses) that is
+the robot's world frame already, so the default puts the twin where the object is. With
 ``ExportConfig.base_frame`` (e.g. ``"T_world_model"``, set by registration) the base is placed at
 that pose of ``ArticulatedModel.frames``: a rigid 4x4 ``T_world_model`` with its translation in
 metres, applied to the scaled points (p_world = R @ (scale * p_model) + t).
@@ -938,8 +940,13 @@ def export_mjcf(model: ArticulatedModel | Twin, path: str | Path,
 
 def export_urdf(model: ArticulatedModel | Twin, path: str | Path,
                 config: ExportConfig | None = None) -> list[Path]:
-    """Write the model as a URDF file with its meshes in ``<stem>_meshes/`` beside it (mesh
-    file names relative to the URDF's folder). See export_mjcf."""
+    """Write the model as a URDF file with its meshes in ``<stem>_meshes/`` beside it. See
+    export_mjcf.
+
+    Mesh file names are relative to the URDF's folder. ``pin.buildModelFromUrdf`` (kinematics,
+    inertias) reads no mesh; pinocchio 4.1's ``pin.buildGeomFromUrdf`` resolves relative mesh
+    paths against ``package_dirs``, so pass ``package_dirs=[<the URDF's folder>]``.
+    """
     twin = model if isinstance(model, Twin) else build_twin(model, config, Path(path).stem)
     return _export_robot(twin, Path(path), urdf_string)
 

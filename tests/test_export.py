@@ -494,3 +494,9 @@ def test_twin_of_a_bundled_scene_moves_like_the_true_object(tmp_path, name):
                          "max_mm": float(dist.max() * 1e3)}
         assert np.percentile(dist, 95) < SURFACE_P95_M, report
     print(name, json.dumps(report))
+    # the real-size twin steps cleanly (meshes, inertias and limits acceptable to MuJoCo)
+    d = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, d, 1)
+    mujoco.mj_step(m, d, nstep=int(0.5 / m.opt.timestep))
+    assert all(int(d.warning[i].number) == 0 for i in range(len(d.warning)))
+    assert np.all(np.isfinite(d.qpos))
