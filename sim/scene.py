@@ -423,7 +423,7 @@ def load_scene(name_or_path: str | os.PathLike) -> Scene:
         The file is missing or does not compile (MuJoCo's message with the file name), has no
         body ``"object"``, has an object joint that is not a hinge or slide, two joints on one
         body or a joint without range, or its configurations name an unknown joint, lie
-        outside a joint's range or miss a joint.
+        outside a joint's range, miss a joint or break a joint coupling (``<equality><joint>``).
     """
     path = scene_path(name_or_path)
     model = _compile(path)
