@@ -1,0 +1,378 @@
+"""The whole reconstruction: two image folders in, an articulated model out.
+
+Stages (each its own module, plain data between them)::
+
+    sfm (per configuration) -> dense (per configuration) -> object region -> features (A x B)
+        -> segment_links -> estimate_joints -> dense points assigned to links -> ArticulatedModel
+
+The model frame is configuration A's SfM frame: arbitrary scale and placement when the
+cameras were found from the images alone (``model.scale_known`` is False), the frame of the given
+camera poses (metres) when poses were given.
+
+Background. The object stands on a table in a room; neither the background nor the object's base
+moves between A and B, but the two SfM models are independent, so the background would join the
+base link's rigid set. It is removed before matching and from the dense points by
+:func:`artrecon.dense.object_region`: points far from where the cameras' optical axes meet
+(relative to the camera distance) are dropped, and so is the support plane the cameras all look
+down on (with everything beyond it).
+
+Output folder (written whole or not at all: built in a temporary sibling folder, then renamed)::
+
+    OUT/model.json                    the ArticulatedModel (ArticulatedModel.load reads it)
+    OUT/links/link_<k>.ply            dense oriented points of each link (model frame)
+    OUT/a/sparse/0, OUT/b/sparse/0    the SfM models in COLMAP's layout (+ database.db, colmap.log)
+    OUT/a/dense.ply, OUT/b/dense.ply  the object's dense points of each configuration (own frame)
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from artrecon import __version__
+from artrecon.dense import DenseConfig, DensePoints, RegionConfig, dense_points, object_region
+from artrecon.errors import InputError, ReconstructionError
+from artrecon.features import MatchConfig, match_configurations
+from artrecon.io import Intrinsics, load_cameras_json, load_image_folder, parse_intrinsics
+from artrecon.joints import JointConfig, estimate_joints
+from artrecon.model import ArticulatedModel, Link
+from artrecon.procrustes import rigid_transform
+from artrecon.segment import Segmentation, SegmentationConfig, segment_links
+from artrecon.sfm import SfMConfig, SfMResult, run_sfm
+
+log = logging.getLogger(__name__)
+
+#: A dense point joins link k when link k's A->B transform puts it within this many times the
+#: link's match residual (or this many dense point spacings, whichever is larger) of the other
+#: configuration's dense surface.
+ASSIGN_RESIDUAL_FACTOR = 3.0
+ASSIGN_SPACING_FACTOR = 2.0
+
+
+@dataclass(frozen=True)
+class ReconstructConfig:
+    """Settings of every stage."""
+
+    sfm: SfMConfig = field(default_factory=SfMConfig)
+    dense: DenseConfig = field(default_factory=DenseConfig)
+    region: RegionConfig = field(default_factory=RegionConfig)
+    match: MatchConfig = field(default_factory=MatchConfig)
+    segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
+    joints: JointConfig = field(default_factory=JointConfig)
+
+
+def _cameras(sfm: SfMResult) -> tuple[np.ndarray, np.ndarray]:
+    T = sfm.T_world_camera()
+    names = sorted(T)
+    return np.array([T[n][:3, 3] for n in names]), np.array([T[n][:3, 2] for n in names])
+
+
+def write_ply(path: str | Path, points: np.ndarray, normals: np.ndarray | None = None,
+              colours: np.ndarray | None = None) -> Path:
+    """Binary little-endian PLY of points (n, 3) with optional normals (n, 3) and RGB (n, 3)."""
+    points = np.asarray(points, dtype=float)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points: expected shape (n, 3), got {points.shape}")
+    n = len(points)
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    if normals is not None:
+        fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
+    if colours is not None:
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    rec = np.zeros(n, dtype=fields)
+    for k, c in enumerate("xyz"):
+        rec[c] = points[:, k]
+    if normals is not None:
+        for k, c in enumerate(("nx", "ny", "nz")):
+            rec[c] = np.asarray(normals)[:, k]
+    if colours is not None:
+        for k, c in enumerate(("red", "green", "blue")):
+            rec[c] = np.asarray(colours)[:, k]
+    types = {"<f4": "float", "u1": "uchar"}
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
+    header += [f"property {types[t]} {name}" for name, t in fields]
+    header.append("end_header")
+    path = Path(path)
+    with open(path, "wb") as fh:
+        fh.write(("\n".join(header) + "\n").encode("ascii"))
+        fh.write(rec.tobytes())
+    return path
+
+
+def merge_equivalent_links(points_a: np.ndarray, points_b: np.ndarray,
+                           seg: Segmentation) -> Segmentation:
+    """Merge links that move the same way (one rigid body split by sequential RANSAC).
+
+    Sequential RANSAC with an inlier distance refined down to the noise level can cut one rigid
+    body into several links with the same transform (seen on metric, low-noise matches). Link j
+    joins link i when i's transform explains j's matches about as well as j's own: median
+    residual below the larger of the two links' inlier thresholds. Links are refitted (rigid, the
+    common scale kept) after each merge; link order stays by size.
+    """
+    labels = np.asarray(seg.labels).copy()
+    transforms = list(seg.transforms)
+    thresholds = list(seg.thresholds) if seg.thresholds else [np.inf] * len(transforms)
+    merged = True
+    while merged and len(transforms) > 1:
+        merged = False
+        for i in range(len(transforms)):
+            for j in range(i + 1, len(transforms)):
+                mj = labels == j
+                res = np.linalg.norm(transforms[i].apply(points_a[mj]) - points_b[mj], axis=1)
+                if np.median(res) < max(thresholds[i], thresholds[j]):
+                    labels[mj] = i
+                    labels[labels > j] -= 1
+                    mi = labels == i
+                    transforms[i] = rigid_transform(points_a[mi], points_b[mi], scale=seg.scale)
+                    del transforms[j], thresholds[j]
+                    merged = True
+                    break
+            if merged:
+                break
+    if len(transforms) == seg.n_links:
+        return seg
+    sizes = np.bincount(labels[labels >= 0], minlength=len(transforms))
+    order = np.argsort(-sizes, kind="stable")
+    remap = np.full(len(order), -1)
+    remap[order] = np.arange(len(order))
+    labels = np.where(labels >= 0, remap[np.maximum(labels, 0)], -1)
+    transforms = [transforms[k] for k in order]
+    rms = []
+    for k, T in enumerate(transforms):
+        m = labels == k
+        rms.append(float(np.sqrt(np.mean(np.sum((T.apply(points_a[m]) - points_b[m]) ** 2, 1)))))
+    log.info("merged links moving alike: %d -> %d links", seg.n_links, len(transforms))
+    return Segmentation(labels=labels, transforms=transforms, scale=seg.scale,
+                        thresholds=[thresholds[k] for k in order],
+                        scene_size_a=seg.scene_size_a, scene_size_b=seg.scene_size_b,
+                        hypotheses=list(seg.hypotheses), rms=rms)
+
+
+def assign_dense_to_links(dense_a: DensePoints, dense_b: DensePoints, points_a: np.ndarray,
+                          points_b: np.ndarray, segmentation) -> tuple[np.ndarray, np.ndarray]:
+    """Link label of every dense point of A and of B (-1: none).
+
+    A point of A joins the link whose A->B transform carries it onto B's dense surface; when
+    several do (near a joint) or none does (its counterpart hidden in B), the label of the nearest
+    segmented match decides. Symmetrically for B with the inverse transforms.
+
+    Returns
+    -------
+    labels_a : (len(dense_a),) int
+    labels_b : (len(dense_b),) int
+    """
+    labels = np.asarray(segmentation.labels)
+    good = labels >= 0
+    out = []
+    for src, dst, m_src, forward in ((dense_a, dense_b, points_a, True),
+                                     (dense_b, dense_a, points_b, False)):
+        tree_dst = cKDTree(dst.points)
+        spacing = float(np.median(tree_dst.query(dst.points, k=2)[0][:, 1]))
+        dists = []
+        for k, T in enumerate(segmentation.transforms):
+            T = T if forward else T.inverse()
+            res = float(segmentation.rms[k]) if k < len(segmentation.rms) else 0.0
+            if not forward:
+                res /= segmentation.scale
+            thr = max(ASSIGN_RESIDUAL_FACTOR * res, ASSIGN_SPACING_FACTOR * spacing)
+            d = tree_dst.query(T.apply(src.points))[0]
+            dists.append(np.where(d < thr, d, np.inf))
+        dists = np.array(dists)  # (links, n)
+        nearest = labels[good][cKDTree(m_src[good]).query(src.points)[1]]
+        fits = np.isfinite(dists)
+        n_fit = fits.sum(0)
+        lab = np.where(n_fit == 1, dists.argmin(0), nearest)
+        lab = np.where((n_fit > 1) & ~fits[nearest, np.arange(len(nearest))], dists.argmin(0), lab)
+        out.append(lab.astype(int))
+    return out[0], out[1]
+
+
+def _resolve_inputs(images, intrinsics, poses_arg, which: str):
+    iset = load_image_folder(images)
+    intr = None
+    poses = None
+    if intrinsics is not None:
+        intr = parse_intrinsics(intrinsics, iset.size)
+    elif iset.cameras_file is not None:
+        intr = load_cameras_json(iset.cameras_file)[0]
+        log.info("configuration %s: intrinsics from %s", which, iset.cameras_file)
+    if poses_arg is True:
+        if iset.cameras_file is None:
+            raise InputError(f"poses requested but {iset.root} has no cameras.json; run without "
+                             "poses (SfM from the images) or add the camera file")
+        intr_c, poses = load_cameras_json(iset.cameras_file)
+        intr = intr or intr_c
+    elif isinstance(poses_arg, dict):
+        poses = {Path(k).name: np.asarray(v, dtype=float) for k, v in poses_arg.items()}
+    if poses is not None and intr is None:
+        raise InputError(f"configuration {which}: camera poses need intrinsics too")
+    if intr is not None and intr.size is not None and tuple(intr.size) != tuple(iset.size):
+        raise InputError(f"configuration {which}: intrinsics are for {intr.size[0]}x{intr.size[1]}"
+                         f" images but {iset.image_dir} holds {iset.size[0]}x{iset.size[1]}")
+    return iset, intr, poses
+
+
+def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None, seed: int = 0,
+                config: ReconstructConfig = ReconstructConfig(), overwrite: bool = False,
+                progress: bool = True) -> ArticulatedModel:
+    """Articulated model of an object from two image sets, one per configuration.
+
+    Parameters
+    ----------
+    images_a, images_b : str or Path
+        Folders of photos of configuration A and B (or capture folders with ``images/``).
+    intrinsics : (3, 3) array, "fx,fy,cx,cy", JSON path, Intrinsics, or a pair of them, optional
+        Known pinhole intrinsics (held fixed). When absent, a folder's ``cameras.json`` supplies
+        them if present; otherwise COLMAP estimates them.
+    poses : None, True, or a pair of dicts name -> (4, 4) ``T_world_camera``
+        None (default, the method): cameras from the images alone. True: use each folder's
+        ``cameras.json`` poses (the arm's forward kinematics) and only triangulate.
+    out_dir : str or Path, optional
+        Where to write the model, link PLYs and SfM models (see the module docstring). Nothing is
+        kept when None.
+    seed : int
+    config : ReconstructConfig
+    overwrite : bool
+        Replace an existing ``out_dir``.
+    progress : bool
+        tqdm bars on stderr.
+
+    Returns
+    -------
+    ArticulatedModel
+        Links with dense oriented points (model frame = configuration A's SfM frame), joints.
+
+    Raises
+    ------
+    InputError
+        Bad folders, images or camera files.
+    ReconstructionError, DegenerateError
+        A stage failed (the message says which and what to try).
+    """
+    t_all = time.perf_counter()
+    # One value for both sets, or a pair (a (3, 3) nested list has 3 rows, never 2).
+    pair = intrinsics if isinstance(intrinsics, (tuple, list)) and len(intrinsics) == 2 \
+        else (intrinsics, intrinsics)
+    poses_pair = poses if isinstance(poses, (tuple, list)) else (poses, poses)
+    set_a, intr_a, poses_a = _resolve_inputs(images_a, pair[0], poses_pair[0], "A")
+    set_b, intr_b, poses_b = _resolve_inputs(images_b, pair[1], poses_pair[1], "B")
+    if out_dir is not None:
+        out_dir = Path(out_dir)
+        if out_dir.exists() and not overwrite:
+            raise InputError(f"output folder {out_dir} exists; choose another or pass "
+                             "overwrite=True (--overwrite)")
+        out_dir.parent.mkdir(parents=True, exist_ok=True)
+        work = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp-", dir=out_dir.parent))
+    else:
+        work = Path(tempfile.mkdtemp(prefix="artrecon-"))
+    try:
+        model = _run(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work, seed, config,
+                     progress)
+        model.metadata["timings"]["total"] = time.perf_counter() - t_all
+        if out_dir is not None:
+            model.save(work / "model.json")
+            if out_dir.exists():
+                shutil.rmtree(out_dir)
+            os.replace(work, out_dir)
+            log.info("wrote %s", out_dir)
+    finally:
+        if work.exists():
+            shutil.rmtree(work, ignore_errors=True)
+    return model
+
+
+def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, poses_a, poses_b,
+         work: Path, seed: int, config: ReconstructConfig, progress: bool) -> ArticulatedModel:
+    timings: dict[str, float] = {}
+    console = sys.stderr if progress else None
+    sfms, denses, regions = {}, {}, {}
+    for key, iset, intr, poses in (("a", set_a, intr_a, poses_a), ("b", set_b, intr_b, poses_b)):
+        t = time.perf_counter()
+        sfm = run_sfm(iset, work / key, intr, poses, config.sfm, seed, progress)
+        timings[f"sfm_{key}"] = time.perf_counter() - t
+        t = time.perf_counter()
+        dense = dense_points(sfm, config.dense, console)
+        centres, axes = _cameras(sfm)
+        dense = dense.subset(object_region(dense.points, centres, axes, config.region, seed))
+        if len(dense) < 10:
+            raise ReconstructionError(f"configuration {key.upper()}: no dense points left on the "
+                                      "object after removing the background; the cameras should "
+                                      "circle the object and look at it")
+        timings[f"dense_{key}"] = time.perf_counter() - t
+        rec = sfm.reconstruction
+        ids = np.array(list(rec.point3D_ids()), dtype=np.int64)
+        xyz = np.array([rec.points3D[int(i)].xyz for i in ids])
+        regions[key] = set(ids[object_region(xyz, centres, axes, config.region, seed)].tolist())
+        write_ply(work / key / "dense.ply", dense.points, dense.normals, dense.colors)
+        sfms[key], denses[key] = sfm, dense
+    t = time.perf_counter()
+    matches = match_configurations(sfms["a"], sfms["b"], config.match, seed, regions["a"],
+                                   regions["b"])
+    timings["match"] = time.perf_counter() - t
+    t = time.perf_counter()
+    seg = segment_links(matches.points_a, matches.points_b, config.segmentation, seed=seed)
+    seg = merge_equivalent_links(matches.points_a, matches.points_b, seg)
+    joints = estimate_joints(matches.points_a, matches.points_b, seg, config.joints)
+    timings["segment_joints"] = time.perf_counter() - t
+    t = time.perf_counter()
+    lab_a, lab_b = assign_dense_to_links(denses["a"], denses["b"], matches.points_a,
+                                         matches.points_b, seg)
+    links = []
+    (work / "links").mkdir(exist_ok=True)
+    for k, T in enumerate(seg.transforms):
+        ia, ib = lab_a == k, lab_b == k
+        inv = T.inverse()
+        pts = np.concatenate([denses["a"].points[ia], inv.apply(denses["b"].points[ib])])
+        nrm = np.concatenate([denses["a"].normals[ia], denses["b"].normals[ib] @ T.rotation])
+        col = np.concatenate([denses["a"].colors[ia], denses["b"].colors[ib]])
+        links.append(Link(points=pts, match_indices=np.full(len(pts), -1), transform_a_to_b=T,
+                          colours=col, normals=nrm, name=f"link_{k}"))
+        write_ply(work / "links" / f"link_{k}.ply", pts, nrm, col)
+    timings["assign"] = time.perf_counter() - t
+    children = {j.child for j in joints}
+    roots = [k for k in range(len(links)) if k not in children]
+    metric = poses_a is not None and poses_b is not None
+    model = ArticulatedModel(
+        links=links, joints=joints, scale=1.0,
+        frames={"T_world_model": np.eye(4)} if metric else {},
+        root=roots[0] if roots else 0, scale_a_to_b=float(seg.scale), scale_known=metric,
+        metadata={
+            "artrecon_version": __version__, "seed": seed,
+            "images_a": str(set_a.root), "images_b": str(set_b.root),
+            "camera_poses": "given (known-pose triangulation)" if metric else "SfM from images",
+            "model_frame": "world frame of configuration A's camera poses (metres)" if metric
+            else "configuration A's SfM frame (arbitrary scale)",
+            "registered_images": {k: s.reconstruction.num_reg_images() for k, s in sfms.items()},
+            "num_images": {k: s.num_images for k, s in sfms.items()},
+            "sparse_points": {k: s.reconstruction.num_points3D() for k, s in sfms.items()},
+            "dense_points": {k: len(d) for k, d in denses.items()},
+            "matches": len(matches), "match_outliers": int((seg.labels < 0).sum()),
+            "link_matches": seg.sizes.tolist(),
+            "dense_unassigned": {"a": int((lab_a < 0).sum()), "b": int((lab_b < 0).sum())},
+            "config": _jsonable(asdict(config)),
+            "timings": timings,
+        })
+    log.info("model: %d links, %d joints, timings %s", len(links), len(joints),
+             {k: round(v, 1) for k, v in timings.items()})
+    return model
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {k: _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    if isinstance(obj, (str, int, float, bool)) or obj is None:
+        return obj
+    return str(obj)
