@@ -34,8 +34,9 @@ class MatchConfig:
     """Lowe's ratio: best distance below this x second best (SIFT paper: 0.8)."""
     images_per_image: int = 6
     """B images compared with each A image (the most similar ones)."""
-    retrieval_sample: int = 500
-    """Descriptors per image used to rank image similarity."""
+    retrieval_sample: int = 200
+    """Descriptors per image used to rank image similarity (200: the ranking is stable and the
+    n_a x n_b sampled comparisons stay a few seconds)."""
     min_votes: int = 1
     """A 3D-3D pair needs at least this many image pairs agreeing on it."""
     min_matches: int = 12
