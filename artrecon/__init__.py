@@ -9,3 +9,9 @@ import logging
 __version__ = "0.1.0"
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+# The public entry point: artrecon.reconstruct(images_a, images_b, ...) -> ArticulatedModel.
+# Imported last (it needs __version__); it shadows the submodule name on purpose.
+from artrecon.reconstruct import reconstruct  # noqa: E402
+
+__all__ = ["reconstruct", "__version__"]

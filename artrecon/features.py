@@ -32,8 +32,9 @@ class MatchConfig:
 
     ratio: float = 0.8
     """Lowe's ratio: best distance below this x second best (SIFT paper: 0.8)."""
-    images_per_image: int = 6
-    """B images compared with each A image (the most similar ones)."""
+    images_per_image: int = 4
+    """B images compared with each A image (the most similar ones); matching time grows with it
+    and 4 neighbours already give every 3D point several votes on a ring of views."""
     retrieval_sample: int = 200
     """Descriptors per image used to rank image similarity (200: the ranking is stable and the
     n_a x n_b sampled comparisons stay a few seconds)."""

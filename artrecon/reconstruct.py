@@ -22,6 +22,7 @@ Output folder (written whole or not at all: built in a temporary sibling folder,
     OUT/links/link_<k>.ply            dense oriented points of each link (model frame)
     OUT/a/sparse/0, OUT/b/sparse/0    the SfM models in COLMAP's layout (+ database.db, colmap.log)
     OUT/a/dense.ply, OUT/b/dense.ply  the object's dense points of each configuration (own frame)
+    OUT/matches.npz                   the 3D-3D matches (points_a, points_b, ids, votes, labels)
 """
 
 from __future__ import annotations
@@ -321,6 +322,9 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     t = time.perf_counter()
     seg = segment_links(matches.points_a, matches.points_b, config.segmentation, seed=seed)
     seg = merge_equivalent_links(matches.points_a, matches.points_b, seg)
+    np.savez(work / "matches.npz", points_a=matches.points_a, points_b=matches.points_b,
+             point3D_ids_a=matches.point3D_ids_a, point3D_ids_b=matches.point3D_ids_b,
+             votes=matches.votes, labels=seg.labels)
     joints = estimate_joints(matches.points_a, matches.points_b, seg, config.joints)
     timings["segment_joints"] = time.perf_counter() - t
     t = time.perf_counter()
