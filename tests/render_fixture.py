@@ -223,3 +223,82 @@ def lid_transform_a_to_b() -> np.ndarray:
     T[:3, :3] = R
     T[:3, 3] = HINGE_POINT - R @ HINGE_POINT
     return T
+
+
+# --- shared pytest fixtures (imported by the test modules) -------------------------------------
+
+#: Views per rendered test set: two rings of 18 (20 degrees apart). Fewer views keep the SfM tests
+#: fast; benchmarks/bench_sfm.py also measures 72.
+TEST_VIEWS = 36
+
+
+def _pytest_fixtures():
+    import pytest
+
+    @pytest.fixture(scope="session")
+    def rendered(tmp_path_factory):
+        """Configuration A and B of the hinge fixture, rendered once per session."""
+        root = tmp_path_factory.mktemp("hinge")
+        return {c: render_set(root / c, c, TEST_VIEWS) for c in ("a", "b")}
+
+    @pytest.fixture(scope="session")
+    def reconstruction_sfm(rendered, tmp_path_factory):
+        """The whole run, cameras from the images alone (the method's default)."""
+        from artrecon import reconstruct
+
+        out = tmp_path_factory.mktemp("run") / "sfm"
+        model = reconstruct(rendered["a"].folder, rendered["b"].folder, out_dir=out,
+                            progress=False)
+        return model, out
+
+    @pytest.fixture(scope="session")
+    def reconstruction_poses(rendered, tmp_path_factory):
+        """The whole run with the cameras' known poses (fast path)."""
+        from artrecon import reconstruct
+
+        out = tmp_path_factory.mktemp("run") / "poses"
+        model = reconstruct(rendered["a"].folder, rendered["b"].folder, poses=True, out_dir=out,
+                            progress=False)
+        return model, out
+
+    return rendered, reconstruction_sfm, reconstruction_poses
+
+
+def camera_centres(model_dir) -> dict:
+    """Camera centre (3,) per image name of a COLMAP model folder."""
+    import pycolmap
+
+    rec = pycolmap.Reconstruction(str(model_dir))
+    out = {}
+    for img in rec.images.values():
+        if img.has_pose:
+            out[img.name] = np.asarray(img.projection_center())
+    return out
+
+
+def align_to_truth(model_dir, truth: FixtureSet):
+    """Similarity (Umeyama on camera centres) from a model's frame to the world, and the
+    per-camera centre errors (m,) in metres after it."""
+    from artrecon.procrustes import similarity_transform
+
+    centres = camera_centres(model_dir)
+    names = sorted(centres)
+    idx = [truth.names.index(n) for n in names]
+    src = np.array([centres[n] for n in names])
+    dst = truth.T_world_camera[idx, :3, 3]
+    S = similarity_transform(src, dst)
+    return S, np.linalg.norm(S.apply(src) - dst, axis=1)
+
+
+def axis_errors(direction, point, true_direction, true_point) -> tuple[float, float]:
+    """Axis angle error (deg, sign-free) and distance (m) between two 3D lines."""
+    d1 = np.asarray(direction) / np.linalg.norm(direction)
+    d2 = np.asarray(true_direction) / np.linalg.norm(true_direction)
+    ang = float(np.degrees(np.arccos(np.clip(abs(d1 @ d2), 0, 1))))
+    n = np.cross(d1, d2)
+    w = np.asarray(point) - np.asarray(true_point)
+    if np.linalg.norm(n) < 1e-6:
+        dist = float(np.linalg.norm(w - (w @ d2) * d2))
+    else:
+        dist = float(abs(w @ n) / np.linalg.norm(n))
+    return ang, dist

@@ -1,0 +1,144 @@
+"""The whole run: outputs, matches across configurations, and the recovered joint."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import render_fixture as rf
+from render_fixture import _pytest_fixtures, align_to_truth, axis_errors
+
+from artrecon import features
+from artrecon.cli import main
+from artrecon.errors import InputError
+from artrecon.model import ArticulatedModel
+from artrecon.procrustes import Similarity
+from artrecon.reconstruct import merge_equivalent_links, reconstruct, write_ply
+from artrecon.segment import Segmentation
+
+rendered, reconstruction_sfm, reconstruction_poses = _pytest_fixtures()
+
+#: Gates on the rendered hinge (30 degrees of motion). Measured with SfM from images:
+#: axis angle ~0.01 deg, axis distance ~0.1 mm, angle error ~0.01 deg.
+AXIS_ANGLE_GATE_DEG = 1.0
+AXIS_DISTANCE_GATE = 0.003  # m
+ANGLE_GATE_DEG = 1.0
+#: Share of 3D-3D matches whose B point is where the true motion puts the A point (5 mm).
+MATCH_CORRECT_GATE = 0.9
+
+
+def test_write_ply_header_and_size(tmp_path):
+    pts = np.arange(12, dtype=float).reshape(4, 3)
+    p = write_ply(tmp_path / "x.ply", pts, np.tile([0, 0, 1.0], (4, 1)),
+                  np.full((4, 3), 7, np.uint8))
+    data = p.read_bytes()
+    head, body = data.split(b"end_header\n")
+    assert b"element vertex 4" in head and b"property uchar red" in head
+    assert len(body) == 4 * (6 * 4 + 3)
+    with pytest.raises(ValueError, match=r"\(n, 3\)"):
+        write_ply(tmp_path / "y.ply", pts[:, :2])
+
+
+def test_mutual_ratio_matching_keeps_distinct_pairs():
+    rng = np.random.default_rng(0)
+    da = rng.random((50, 128)).astype(np.float32)
+    da /= np.linalg.norm(da, axis=1, keepdims=True)
+    perm = rng.permutation(50)
+    db = da[perm] + 0.001 * rng.standard_normal((50, 128)).astype(np.float32)
+    db /= np.linalg.norm(db, axis=1, keepdims=True)
+    db[0] = db[1]  # two identical descriptors in B: ambiguous, must be dropped
+    ia, ib = features._mutual_ratio(da, db, 0.8)
+    assert len(ia) >= 45
+    np.testing.assert_array_equal(perm[ib], ia)
+    assert perm[0] not in ia and perm[1] not in ia
+
+
+def test_merge_equivalent_links_joins_a_split_body():
+    rng = np.random.default_rng(3)
+    pa = rng.random((300, 3))
+    moved = Similarity(np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1.0]]), np.array([1.0, 0, 0]), 1.0)
+    labels = np.r_[np.zeros(100), np.ones(100), np.full(100, 2)].astype(int)
+    pb = pa.copy()
+    pb[labels == 2] = moved.apply(pa[labels == 2])
+    ident = Similarity(np.eye(3), np.zeros(3), 1.0)
+    seg = Segmentation(labels=labels, transforms=[ident, ident, moved], scale=1.0,
+                       thresholds=[0.01, 0.01, 0.01], rms=[0.0, 0.0, 0.0])
+    out = merge_equivalent_links(pa, pb, seg)
+    assert out.n_links == 2
+    assert np.all(out.labels[:200] == 0) and np.all(out.labels[200:] == 1)
+
+
+def test_cli_bad_input_exit_code(tmp_path, capsys):
+    assert main(["reconstruct", str(tmp_path / "none"), str(tmp_path), "--out",
+                 str(tmp_path / "o")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+
+
+def test_existing_output_is_not_overwritten(rendered, tmp_path):
+    (tmp_path / "out").mkdir()
+    with pytest.raises(InputError, match="exists"):
+        reconstruct(rendered["a"].folder, rendered["b"].folder, out_dir=tmp_path / "out")
+
+
+def _check_outputs(model, out):
+    assert (out / "model.json").is_file() and not list(out.parent.glob(f".{out.name}.tmp-*"))
+    loaded = ArticulatedModel.load(out / "model.json")
+    assert len(loaded.links) == len(model.links)
+    for c in ("a", "b"):
+        assert (out / c / "sparse" / "0" / "images.bin").is_file()
+    assert len(list((out / "links").glob("link_*.ply"))) == len(model.links)
+
+
+def _match_share_correct(out, truth_a, truth_b, to_world_a, to_world_b):
+    m = np.load(out / "matches.npz")
+    A, B = to_world_a(m["points_a"]), to_world_b(m["points_b"])
+    from scipy.spatial import cKDTree
+
+    d, k = cKDTree(truth_a.object_points).query(A)
+    lid = (truth_a.object_links[k] == 1) & (d < 0.005)
+    T = rf.lid_transform_a_to_b()
+    pred = np.where(lid[:, None], A @ T[:3, :3].T + T[:3, 3], A)
+    return float((np.linalg.norm(pred - B, axis=1) < 0.005).mean()), len(A)
+
+
+def _joint_errors(model, to_world_a, rotation_a):
+    assert len(model.links) == 2, f"expected 2 links, got {len(model.links)}"
+    (j,) = model.joints
+    assert j.type == "revolute"
+    truth = rf.true_hinge()
+    ang, dist = axis_errors(rotation_a @ j.axis_direction, to_world_a(j.axis_point[None])[0],
+                            truth["axis_direction"], truth["axis_point"])
+    signed = j.motion * np.sign(rotation_a @ j.axis_direction @ truth["axis_direction"])
+    return ang, dist, abs(np.degrees(signed - truth["angle"]))
+
+
+@pytest.mark.slow
+def test_whole_run_from_images_recovers_the_hinge(rendered, reconstruction_sfm):
+    model, out = reconstruction_sfm
+    _check_outputs(model, out)
+    Sa, _ = align_to_truth(out / "a" / "sparse" / "0", rendered["a"])
+    Sb, _ = align_to_truth(out / "b" / "sparse" / "0", rendered["b"])
+    share, n = _match_share_correct(out, rendered["a"], rendered["b"], Sa.apply, Sb.apply)
+    ang, dist, dq = _joint_errors(model, Sa.apply, Sa.rotation)
+    print(f"SfM from images: {n} matches, {share:.3f} correct; axis angle {ang:.3f} deg, axis "
+          f"distance {dist * 1e3:.2f} mm, joint angle error {dq:.3f} deg; timings "
+          f"{ {k: round(v, 1) for k, v in model.metadata['timings'].items()} }")
+    assert share > MATCH_CORRECT_GATE
+    assert ang < AXIS_ANGLE_GATE_DEG and dist < AXIS_DISTANCE_GATE and dq < ANGLE_GATE_DEG
+    assert not model.scale_known
+
+
+@pytest.mark.slow
+def test_whole_run_with_known_poses_recovers_the_hinge(rendered, reconstruction_poses):
+    model, out = reconstruction_poses
+    _check_outputs(model, out)
+    share, n = _match_share_correct(out, rendered["a"], rendered["b"], lambda p: p, lambda p: p)
+    ang, dist, dq = _joint_errors(model, lambda p: p, np.eye(3))
+    print(f"known poses: {n} matches, {share:.3f} correct; axis angle {ang:.3f} deg, axis "
+          f"distance {dist * 1e3:.2f} mm, joint angle error {dq:.3f} deg; timings "
+          f"{ {k: round(v, 1) for k, v in model.metadata['timings'].items()} }")
+    assert model.scale_known
+    assert share > MATCH_CORRECT_GATE
+    assert ang < AXIS_ANGLE_GATE_DEG and dist < AXIS_DISTANCE_GATE and dq < ANGLE_GATE_DEG
+    # Links hold dense points of both configurations, the lid's on both of its sides.
+    lid = model.links[model.joints[0].child]
+    assert len(lid.points) > 1000 and lid.normals is not None
