@@ -59,7 +59,7 @@ class DenseConfig:
     check_views: int = 10
     """Images (closest in viewing direction) checked for consistency per reference image."""
     voxel_pixels: float = 1.5
-    """Merge voxel edge, in downsampled pixels at the median depth."""
+    """Merge voxel edge, in downsampled pixels at the median camera distance to the focus."""
     normal_neighbours: int = 16
     """Neighbours for the PCA normal."""
 
@@ -310,11 +310,9 @@ def dense_points(sfm, config: DenseConfig = DenseConfig(), progress=None) -> Den
     if len(P) < 10:
         raise ReconstructionError(f"dense: only {len(P)} points agree across views; the SfM poses "
                                   "may be wrong or the surfaces lack texture")
-    # Merge on a voxel grid about 1.5 downsampled pixels wide at the median depth.
-    med_depth = np.median(np.linalg.norm(P - centre, axis=1)) + np.median(
-        [np.linalg.norm(v.centre - centre) for v in views]) * 0.0
+    # Merge on a voxel grid about 1.5 downsampled pixels wide at the cameras' distance.
     cam_dist = np.median([np.linalg.norm(v.centre - centre) for v in views])
-    voxel = config.voxel_pixels * max(cam_dist, med_depth * 0) / Ks[0][0, 0]
+    voxel = config.voxel_pixels * cam_dist / Ks[0][0, 0]
     keys = np.floor(P / voxel).astype(np.int64)
     _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
     inv = inv.ravel()
