@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import mujoco
@@ -60,6 +60,17 @@ STATIC_TOLERANCE = 1e-9
 #: Slack when checking that the configurations satisfy a joint coupling (``<equality><joint>``):
 #: the polynomial is evaluated in float64 from decimal values, so a representation error only.
 COUPLING_TOLERANCE = 1e-9
+
+#: Name prefix of the joint holds (:func:`add_joint_holds`): ``"hold:" + joint name``.
+HOLD_PREFIX = "hold:"
+#: Stiffness of a hold (MuJoCo ``solref``: time constant, damping ratio). The time constant is
+#: MuJoCo's smallest stable one at the stage's 2 ms timestep (twice the step); with
+#: HOLD_SOLIMP the loaded hinges of the bundled objects (truck bed, scraper boom) settle within
+#: 1e-5 rad of the held value and stay there for minutes (their friction loss, MuJoCo's soft
+#: constraint on velocity only, lets them creep by 1-3 mrad in 3 s).
+HOLD_SOLREF = (0.004, 1.0)
+#: Impedance of a hold (MuJoCo ``solimp``): near-rigid at any violation.
+HOLD_SOLIMP = (0.99, 0.999, 0.001, 0.5, 2.0)
 
 JOINT_TYPES = {int(mujoco.mjtJoint.mjJNT_HINGE): "revolute",
                int(mujoco.mjtJoint.mjJNT_SLIDE): "prismatic"}
@@ -272,6 +283,47 @@ class Scene:
             T[:3, 3] = data.xpos[li.body_id]
             poses[li.name] = T
         return poses
+
+    @property
+    def held_joints(self) -> tuple[str, ...]:
+        """Names of the joints :meth:`with_joint_holds` holds: every object joint except those a
+        coupling drives (its ``joint1``; the coupling already ties it to a held joint)."""
+        driven = {c.joint1 for c in self.couplings}
+        return tuple(j.name for j in self.joints if j.name not in driven)
+
+    def with_joint_holds(self) -> Scene:
+        """The same scene compiled with an inactive hold on each of :attr:`held_joints`.
+
+        The returned scene's model has the same bodies, joints and geoms (same ids and
+        addresses) and one more equality constraint per held joint (:func:`add_joint_holds`);
+        switch the holds on with :meth:`hold`. The model is compiled anew from the file: it
+        is the caller's own (:func:`hold_joints` writes the held values into it).
+        """
+        spec = mujoco.MjSpec.from_file(str(self.path))
+        add_joint_holds(spec, self.held_joints)
+        try:
+            model = spec.compile()
+        except ValueError as err:
+            raise SceneError(f"{self.path}: MuJoCo could not compile the scene with joint "
+                             f"holds: {err}") from err
+        if (model.nq, model.nbody, model.ngeom, model.njnt) != (
+                self.model.nq, self.model.nbody, self.model.ngeom, self.model.njnt):
+            raise SceneError(f"{self.path}: adding the joint holds changed the model's layout; "
+                             "report this bug (sim/scene.py)")
+        return replace(self, model=model)
+
+    def hold(self, data: mujoco.MjData, configuration: str | Mapping[str, float]) -> None:
+        """Hold the object in ``configuration`` (``"a"``, ``"b"`` or ``{joint: value}``).
+
+        Only for a scene from :meth:`with_joint_holds`. Sets the joints' positions (zero
+        velocities) and switches their holds on at those values, see :func:`hold_joints`.
+        """
+        values = (self.configuration(configuration) if isinstance(configuration, str)
+                  else dict(configuration))
+        self.set_joint_values(data, values, forward=False)
+        held = set(self.held_joints)
+        hold_joints(self.model, data, {k: v for k, v in values.items() if k in held})
+        mujoco.mj_forward(self.model, data)
 
 
 def list_scenes(folder: str | os.PathLike | None = None) -> list[str]:
@@ -529,3 +581,83 @@ def physics_warnings(scene: Scene, seconds: float = 1.0, configuration: str = "a
         if n:
             out[name] = n
     return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Joint holds: keep the object still while the arm works around it
+# ----------------------------------------------------------------------------------------------
+
+
+def add_joint_holds(spec: mujoco.MjSpec, joints: Iterable[str]) -> list[str]:
+    """Add to ``spec`` one inactive hold per joint: a MuJoCo joint equality ``q = const``.
+
+    A hold is a physical constraint, as stiff as MuJoCo allows (:data:`HOLD_SOLREF`,
+    :data:`HOLD_SOLIMP`): switched on (:func:`hold_joints`) it keeps a joint where it was put
+    against gravity for as long as the simulation runs, where the joints' friction loss lets a
+    loaded joint creep. It is not a weld of the object to the world: contacts still act, so a
+    collision of the arm with the object still shows as contacts (a hold only keeps the joint
+    from giving way to it). Holds start inactive; the model behaves as without them until one is
+    switched on.
+
+    Parameters
+    ----------
+    spec : mujoco.MjSpec
+        The scene's spec (e.g. ``mujoco.MjSpec.from_file(scene.path)``), before compiling.
+    joints : iterable of str
+        Joint names (hinges or slides) of the spec.
+
+    Returns
+    -------
+    names : list of str
+        Names of the added equality constraints, ``HOLD_PREFIX + joint``.
+    """
+    out = []
+    for joint in joints:
+        name = HOLD_PREFIX + joint
+        spec.add_equality(type=mujoco.mjtEq.mjEQ_JOINT, objtype=mujoco.mjtObj.mjOBJ_JOINT,
+                          name=name, name1=joint, name2="", active=False,
+                          data=[0.0] * 12, solref=list(HOLD_SOLREF), solimp=list(HOLD_SOLIMP))
+        out.append(name)
+    return out
+
+
+def _hold_id(model: mujoco.MjModel, joint: str) -> int:
+    e = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, HOLD_PREFIX + joint)
+    if e < 0:
+        raise KeyError(f"the model has no hold on joint {joint!r}; compile it with "
+                       f"Scene.with_joint_holds() or add_joint_holds(spec, [...])")
+    return e
+
+
+def hold_joints(model: mujoco.MjModel, data: mujoco.MjData, values: Mapping[str, float]) -> None:
+    """Switch on the holds of joints ``{name: value}`` at those values (rad or m).
+
+    Writes each hold's target into ``model.eq_data`` (so the model should be the caller's own,
+    e.g. from :meth:`Scene.with_joint_holds`) and sets ``data.eq_active``. Does not move the
+    joints: put them at the values first (:meth:`Scene.set_joint_values`), or the hold pulls them
+    there.
+
+    Raises
+    ------
+    KeyError
+        A joint has no hold in ``model``.
+    """
+    for joint, value in values.items():
+        e = _hold_id(model, joint)
+        j = int(model.eq_obj1id[e])
+        # MuJoCo's joint equality is q - qpos0 = c0 + c1 (q2 - q2_0) + ...; one joint: c0 only
+        model.eq_data[e, :5] = [float(value) - float(model.qpos0[model.jnt_qposadr[j]]),
+                                0.0, 0.0, 0.0, 0.0]
+        data.eq_active[e] = 1
+
+
+def release_joints(model: mujoco.MjModel, data: mujoco.MjData,
+                   joints: Iterable[str] | None = None) -> None:
+    """Switch off the holds of ``joints`` (default: every hold of the model)."""
+    if joints is None:
+        ids = [e for e in range(model.neq)
+               if _name(model, mujoco.mjtObj.mjOBJ_EQUALITY, e).startswith(HOLD_PREFIX)]
+    else:
+        ids = [_hold_id(model, j) for j in joints]
+    for e in ids:
+        data.eq_active[e] = 0

@@ -19,11 +19,14 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from sim.scene import (
+    HOLD_PREFIX,
     SCENES_DIR,
     SceneError,
+    hold_joints,
     list_scenes,
     load_scene,
     physics_warnings,
+    release_joints,
     scene_path,
 )
 
@@ -92,6 +95,62 @@ def test_configuration_holds_for_one_second(name, configuration):
     for j in scene.joints:
         drift = abs(data.qpos[j.qpos_adr] - j.value(configuration))
         assert drift < HOLD_TOL[j.type], f"{name}: {j.name} drifted by {drift:g}"
+
+
+#: A held joint must stay this close to its value through a long capture (sim.capture's drift
+#: tolerance is 1e-4 rad or m).
+HELD_TOL = 2e-5
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_joint_holds_keep_the_configuration_where_friction_lets_it_creep(name):
+    scene = load_scene(name)
+    held = scene.with_joint_holds()
+    model = held.model
+    # same bodies, joints and geoms: ids and addresses of the scene stay valid
+    assert (model.nq, model.nbody, model.ngeom) == (scene.model.nq, scene.model.nbody,
+                                                   scene.model.ngeom)
+    driven = {c.joint1 for c in scene.couplings}
+    assert set(held.held_joints) == {j.name for j in scene.joints} - driven
+    holds = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_EQUALITY, HOLD_PREFIX + j)
+             for j in held.held_joints]
+    assert min(holds, default=0) >= 0
+    for configuration in ("a", "b"):
+        data = held.make_data(configuration)
+        # inactive by default: the model steps as the scene does
+        assert not data.eq_active[holds].any()
+        free = scene.make_data(configuration)
+        held.hold(data, configuration)
+        steps = int(round(10.0 / model.opt.timestep))
+        mujoco.mj_step(model, data, nstep=steps)
+        mujoco.mj_step(scene.model, free, nstep=steps)
+        for j in scene.joints:
+            drift = abs(data.qpos[j.qpos_adr] - j.value(configuration))
+            assert drift < HELD_TOL, f"{name}/{configuration}: held {j.name} moved by {drift:g}"
+        assert not any(int(w.number) for w in data.warning)
+    # a hold sits where it is told: hold the first joint at another value and it goes there
+    if held.held_joints:
+        j = scene.joint(held.held_joints[0])
+        target = j.value_a + 0.25 * (j.range[1] - j.range[0]) * (1 if j.value_a < j.range.mean()
+                                                                  else -1)
+        data = held.make_data("a")
+        hold_joints(model, data, {j.name: target})
+        mujoco.mj_step(model, data, nstep=int(round(2.0 / model.opt.timestep)))
+        assert abs(data.qpos[j.qpos_adr] - target) < HELD_TOL
+        # released: its hold is off again
+        release_joints(model, data)
+        assert not data.eq_active[holds].any()
+
+
+def test_a_loaded_hinge_creeps_without_its_hold():
+    """Why the holds exist: the truck's tipped bed creeps under gravity against its friction."""
+    scene = load_scene("truck")
+    data = scene.make_data("b")
+    mujoco.mj_step(scene.model, data, nstep=int(round(10.0 / scene.model.opt.timestep)))
+    j = scene.joint("truck_bed_hinge")
+    assert abs(data.qpos[j.qpos_adr] - j.value_b) > 10 * HELD_TOL
+    with pytest.raises(KeyError, match="no hold on joint"):
+        hold_joints(scene.model, data, {j.name: j.value_b})
 
 
 @pytest.mark.parametrize("name", SCENES)
