@@ -128,9 +128,10 @@ class ArmSpec:
     """joint limits (degrees), one pair per arm joint"""
     shoulder_height: float = PUMA560_SHOULDER_HEIGHT
     """DH frame 0 above the base body's origin, along its z axis (m)"""
-    home: tuple[float, ...] = field(default=(0.0, 0.72, -3.17, 0.86, 0.25, -2.25))
+    home: tuple[float, ...] = field(default=(0.115, 1.143, -3.755, 1.072, 0.272, -2.333))
     """home configuration of the arm joints (rad), the MJCF's ``home`` keyframe: on the stage,
-    with the rail at 0, the wrist camera looks at the table centre from 0.45 m, 40 degrees up"""
+    with the rail at 0, the wrist camera looks at the table centre from 0.45 m, 50 degrees up
+    (at 40 degrees, as for the Panda, the PUMA on the 0.80 m rail is 2 degrees from a limit)"""
     urdf: str | None = None
     """URDF of the arm, relative to the repository root; None: the kinematics come from ``dh``"""
     urdf_joints: tuple[str, ...] = ()
@@ -163,7 +164,7 @@ PANDA = ArmSpec(
     name="panda", prefix="panda_", camera="wrist_cam", grasp_site="grasp",
     joints=tuple(f"joint{i}" for i in range(1, 8)), base_body="link0", flange_body="link7",
     dh=(), qlim_deg=(), shoulder_height=0.0,
-    home=(-1.219, 0.726, 1.422, -1.85, -1.43, 2.6, -1.471),
+    home=(-2.239, 0.906, 2.239, -2.646, -1.447, 2.567, -1.366),
     urdf="robots/panda/panda.urdf", urdf_joints=tuple(f"panda_joint{i}" for i in range(1, 8)),
     wrist_flip=False)
 
@@ -766,7 +767,7 @@ def actuator_indices(model, kin: ArmKinematics) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------
 
 #: Arm configuration (joint1..joint6) from which view IK starts when no guess is given: the home
-#: pose, where the camera looks at the table centre from 0.45 m and 40 degrees elevation.
+#: pose, where the camera looks at the table centre from 0.45 m and 50 degrees elevation.
 PUMA560_VIEW_SEED = PUMA560.home
 
 
