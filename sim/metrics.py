@@ -169,3 +169,183 @@ def accuracy_completeness(points_pred: np.ndarray, surface_samples: np.ndarray,
         "accuracy_p90_mm": float(np.percentile(d_pred, 90) * 1e3),
         "completeness": float(np.mean(d_surf <= radius)),
     }
+
+
+#: Joint matching cost (:func:`match_joints`): degrees of axis angle and millimetres of axis
+#: position are scaled by the gates of the evaluation (2 deg, 5 mm) so that both count alike; a
+#: type mismatch costs more than any plausible geometric error, so a pair of the right type wins.
+MATCH_ANGLE_SCALE_DEG = 2.0
+MATCH_POSITION_SCALE_MM = 5.0
+MATCH_TYPE_MISMATCH_COST = 1000.0
+
+
+def joint_match_cost(type_pred: str, point_pred: np.ndarray, direction_pred: np.ndarray,
+                     type_true: str, point_true: np.ndarray, direction_true: np.ndarray) -> float:
+    """Cost of pairing an estimated joint with a true one (inputs in metres).
+
+    ``angle_deg / 2 + position_mm / 5 (revolute pairs only) + 1000 * (types differ)``; the axis
+    position of a prismatic joint has no meaning (any parallel line moves the link alike), so
+    it does not count when either joint is prismatic.
+    """
+    cost = axis_angle_error_deg(direction_pred, direction_true) / MATCH_ANGLE_SCALE_DEG
+    if type_pred == "revolute" and type_true == "revolute":
+        cost += 1e3 * line_distance(point_pred, direction_pred, point_true, direction_true) \
+            / MATCH_POSITION_SCALE_MM
+    if type_pred != type_true:
+        cost += MATCH_TYPE_MISMATCH_COST
+    return float(cost)
+
+
+def match_joints(pred: list[tuple[str, np.ndarray, np.ndarray]],
+                 true: list[tuple[str, np.ndarray, np.ndarray]]) -> list[tuple[int, int]]:
+    """One-to-one pairing of estimated to true joints minimising :func:`joint_match_cost`
+    (Hungarian). Each joint is ``(type, point (3,), direction (3,))``.
+
+    Returns
+    -------
+    pairs : list of (pred index, true index)
+        ``min(len(pred), len(true))`` pairs, sorted by true index; the joints left out are
+        missed (true) or invented (pred).
+    """
+    if not pred or not true:
+        return []
+    cost = np.array([[joint_match_cost(tp, pp, dp, tt, pt, dt) for tt, pt, dt in true]
+                     for tp, pp, dp in pred])
+    rows, cols = linear_sum_assignment(cost)
+    return sorted(((int(r), int(c)) for r, c in zip(rows, cols, strict=True)),
+                  key=lambda rc: rc[1])
+
+
+def camera_pose_errors(T_pred: np.ndarray, T_true: np.ndarray) -> dict[str, float]:
+    """Camera pose errors of estimated against true ``T_world_camera`` (n, 4, 4), metres.
+
+    Returns
+    -------
+    dict with ``position_median_mm``, ``position_max_mm``, ``rotation_median_deg``,
+    ``rotation_max_deg`` and ``n``.
+    """
+    P = np.asarray(T_pred, dtype=float)
+    T = np.asarray(T_true, dtype=float)
+    if P.ndim != 3 or P.shape[1:] != (4, 4) or P.shape != T.shape or len(P) == 0:
+        raise ValueError(f"expected two non-empty (n, 4, 4) pose arrays of the same shape, got "
+                         f"{P.shape} and {T.shape}")
+    dp = np.linalg.norm(P[:, :3, 3] - T[:, :3, 3], axis=1) * 1e3
+    dr = np.array([rotation_error_deg(a[:3, :3], b[:3, :3]) for a, b in zip(P, T, strict=True)])
+    return {"position_median_mm": float(np.median(dp)), "position_max_mm": float(dp.max()),
+            "rotation_median_deg": float(np.median(dr)), "rotation_max_deg": float(dr.max()),
+            "n": int(len(P))}
+
+
+#: A surface sample counts as seen by a camera when it lies no more than this behind the rendered
+#: depth (m): the depth image is quantised to 0.1 mm and a sample lies on a triangle that is
+#: rasterised at pixel centres, so 3 mm absorbs grazing angles without letting a 1 cm wall through.
+VISIBILITY_DEPTH_TOLERANCE_M = 0.003
+
+
+def visible_from_camera(points: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray,
+                        depth: np.ndarray,
+                        tolerance: float = VISIBILITY_DEPTH_TOLERANCE_M) -> np.ndarray:
+    """Which points a camera sees: inside the image, in front, and not behind the rendered depth.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        World points (m).
+    K : (3, 3) float
+        OpenCV intrinsics.
+    T_world_camera : (4, 4) float
+        Camera pose, OpenCV convention.
+    depth : (h, w) float
+        Depth along the optical axis (m) of the same camera, 0 where nothing was rendered.
+    tolerance : float
+        How far behind the depth a point may lie and still count as seen (m).
+
+    Returns
+    -------
+    visible : (n,) bool
+    """
+    X = np.asarray(points, dtype=float)
+    K = np.asarray(K, dtype=float)
+    T = np.asarray(T_world_camera, dtype=float)
+    depth = np.asarray(depth, dtype=float)
+    if X.ndim != 2 or X.shape[1] != 3:
+        raise ValueError(f"points: expected shape (n, 3), got {X.shape}")
+    if K.shape != (3, 3) or T.shape != (4, 4) or depth.ndim != 2:
+        raise ValueError(f"expected K (3, 3), T_world_camera (4, 4), depth (h, w); got "
+                         f"{K.shape}, {T.shape}, {depth.shape}")
+    Rt = T[:3, :3].T
+    Xc = (X - T[:3, 3]) @ Rt.T
+    z = Xc[:, 2]
+    front = z > 1e-9
+    uv = (Xc @ K.T)[:, :2] / np.where(front, z, 1.0)[:, None]
+    u = np.round(uv[:, 0]).astype(np.int64)
+    v = np.round(uv[:, 1]).astype(np.int64)
+    h, w = depth.shape
+    inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    out = np.zeros(len(X), dtype=bool)
+    d = depth[v[inside], u[inside]]
+    out[inside] = (d > 0) & (z[inside] <= d + tolerance)
+    return out
+
+
+def accuracy_completeness_on(points_pred: np.ndarray, surface_samples: np.ndarray,
+                             mask: np.ndarray,
+                             radius: float = COMPLETENESS_RADIUS_M) -> dict[str, float]:
+    """:func:`accuracy_completeness` restricted to a part of the true surface (e.g. the side a
+    camera cannot see).
+
+    Completeness is the share of the samples in ``mask`` within ``radius`` of a predicted point;
+    accuracy is taken over the predicted points whose nearest sample (among all samples) lies in
+    ``mask``. Values are NaN where the part or its points are empty; ``n_samples`` and
+    ``n_points`` say how many there were.
+
+    Parameters
+    ----------
+    points_pred : (n, 3) float
+    surface_samples : (m, 3) float
+    mask : (m,) bool
+        The part of the surface to score.
+    radius : float
+    """
+    P = np.asarray(points_pred, dtype=float)
+    S = np.asarray(surface_samples, dtype=float)
+    mask = np.asarray(mask, dtype=bool)
+    for name, arr in (("points_pred", P), ("surface_samples", S)):
+        if arr.ndim != 2 or arr.shape[1] != 3 or len(arr) == 0:
+            raise ValueError(f"{name}: expected a non-empty (n, 3) array, got {arr.shape}")
+    if mask.shape != (len(S),):
+        raise ValueError(f"mask: expected shape ({len(S)},), got {mask.shape}")
+    d_pred, nearest = cKDTree(S).query(P)
+    d_surf, _ = cKDTree(P).query(S[mask]) if mask.any() else (np.zeros(0), None)
+    on = mask[nearest]
+    return {
+        "accuracy_median_mm": float(np.median(d_pred[on]) * 1e3) if on.any() else float("nan"),
+        "accuracy_p90_mm": (float(np.percentile(d_pred[on], 90) * 1e3) if on.any()
+                            else float("nan")),
+        "completeness": float(np.mean(d_surf <= radius)) if mask.any() else float("nan"),
+        "n_samples": int(mask.sum()),
+        "n_points": int(on.sum()),
+    }
+
+
+def nearest_labels(points: np.ndarray, samples: np.ndarray, sample_labels: np.ndarray,
+                   max_distance: float) -> np.ndarray:
+    """Label of the nearest sample of every point, -1 where none lies within ``max_distance``.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    samples : (m, 3) float
+    sample_labels : (m,) int
+    max_distance : float
+    """
+    P = np.asarray(points, dtype=float)
+    S = np.asarray(samples, dtype=float)
+    L = np.asarray(sample_labels)
+    if P.ndim != 2 or P.shape[1] != 3 or S.ndim != 2 or S.shape[1] != 3 or L.shape != (len(S),):
+        raise ValueError(f"expected points (n, 3), samples (m, 3), sample_labels (m,); got "
+                         f"{P.shape}, {S.shape}, {L.shape}")
+    if len(P) == 0:
+        return np.zeros(0, dtype=int)
+    d, i = cKDTree(S).query(P)
+    return np.where(d <= max_distance, L[i], -1).astype(int)

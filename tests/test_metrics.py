@@ -57,3 +57,59 @@ def test_accuracy_completeness_on_a_plane():
     out = metrics.accuracy_completeness(pred, surface)
     assert out["accuracy_median_mm"] == pytest.approx(2.0, abs=0.01)
     assert out["completeness"] == pytest.approx(0.5, abs=0.03)
+
+
+def test_match_joints_pairs_by_axis_and_type():
+    z, x = np.array([0.0, 0, 1]), np.array([1.0, 0, 0])
+    true = [("revolute", np.zeros(3), z), ("prismatic", np.zeros(3), x)]
+    # estimates listed in the other order, slightly off
+    pred = [("prismatic", np.ones(3), x + [0, 0.01, 0]), ("revolute", [0.001, 0, 0], z)]
+    assert metrics.match_joints(pred, true) == [(1, 0), (0, 1)]
+    # a wrong type costs more than a large angle: the revolute estimate still goes to the hinge
+    assert metrics.match_joints([("revolute", np.zeros(3), x)], true) == [(0, 0)]
+    assert metrics.match_joints([], true) == []
+    # cost: 1 deg -> 0.5, 5 mm between revolute axes -> 1
+    c = metrics.joint_match_cost("revolute", [0.005, 0, 0], z, "revolute", np.zeros(3), z)
+    assert c == pytest.approx(1.0)
+
+
+def test_camera_pose_errors_known_offsets():
+    T_true = np.repeat(np.eye(4)[None], 3, axis=0)
+    T_pred = T_true.copy()
+    T_pred[1, :3, 3] = [0.002, 0, 0]
+    T_pred[2, :3, :3] = Rotation.from_euler("z", 4, degrees=True).as_matrix()
+    out = metrics.camera_pose_errors(T_pred, T_true)
+    assert out["position_max_mm"] == pytest.approx(2.0)
+    assert out["position_median_mm"] == pytest.approx(0.0)
+    assert out["rotation_max_deg"] == pytest.approx(4.0)
+    with pytest.raises(ValueError, match="n, 4, 4"):
+        metrics.camera_pose_errors(T_pred[:, :3], T_true[:, :3])
+
+
+def test_visible_from_camera_occlusion_and_frustum():
+    K = np.array([[100.0, 0, 50], [0, 100, 50], [0, 0, 1]])
+    depth = np.full((100, 100), 1.0)  # a wall 1 m in front of the camera
+    pts = np.array([[0, 0, 1.0],      # on the wall: seen
+                    [0, 0, 1.002],    # 2 mm behind it: within tolerance
+                    [0, 0, 1.05],     # 5 cm behind it: hidden
+                    [0, 0, -1.0],     # behind the camera
+                    [5.0, 0, 1.0]])   # outside the image
+    vis = metrics.visible_from_camera(pts, K, np.eye(4), depth)
+    assert vis.tolist() == [True, True, False, False, False]
+
+
+def test_accuracy_completeness_on_a_part_and_nearest_labels():
+    g = np.linspace(0, 1, 201)
+    surface = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    surface = np.c_[surface, np.zeros(len(surface))]
+    left = surface[:, 0] < 0.5
+    pred = surface[left] + [0, 0, 0.001]  # only the left half, 1 mm off
+    on_right = metrics.accuracy_completeness_on(pred, surface, ~left)
+    on_left = metrics.accuracy_completeness_on(pred, surface, left)
+    assert on_left["completeness"] == pytest.approx(1.0)
+    assert on_left["accuracy_median_mm"] == pytest.approx(1.0, abs=1e-6)
+    assert on_right["completeness"] < 0.03  # only the strip within 5 mm of the cut
+    assert on_right["n_points"] == 0 and np.isnan(on_right["accuracy_median_mm"])
+    labels = metrics.nearest_labels(np.array([[0.1, 0.1, 0.0], [0.1, 0.1, 0.5]]), surface,
+                                    left.astype(int), 0.01)
+    assert labels.tolist() == [1, -1]

@@ -1,0 +1,216 @@
+"""Stage cache of the evaluation: results stored under the hash of everything they depend on.
+
+A stage (a capture, a reconstruction, a manipulation) is a function of its inputs: the scene file
+and every file it includes or references, the configuration, the number of views, the seed, the
+stage's own settings, the package version and the source code of the modules that compute it.
+:func:`stage_key` hashes a JSON description of those inputs; :func:`cached_stage` keeps the
+stage's output folder at ``ROOT/<stage>-<hash>/`` and builds it only when it is absent, so a second
+run of ``python -m sim.evaluate`` redoes only what changed. Folders are built under a temporary
+name beside their final place and renamed when complete: a folder that exists is whole (a run that
+is killed leaves at most a ``.tmp`` folder, which the next run ignores and removes).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import re
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+#: Hex digits of the hash kept in folder names: 16 (64 bits) make a collision between the few
+#: hundred stage results of one evaluation folder practically impossible.
+KEY_LENGTH = 16
+#: File written last into a stage folder, with the stage's own metadata (timings, inputs).
+STAGE_FILE = "stage.json"
+
+_FILE_ATTR = re.compile(r"""\bfile\s*=\s*["']([^"']+)["']""")
+_DIR_ATTR = re.compile(r"""\b(meshdir|texturedir|assetdir)\s*=\s*["']([^"']+)["']""")
+
+
+def hash_bytes(*chunks: bytes) -> str:
+    """SHA-256 hex digest of the concatenated chunks."""
+    h = hashlib.sha256()
+    for c in chunks:
+        h.update(c)
+    return h.hexdigest()
+
+
+def hash_files(paths: Iterable[str | os.PathLike], root: str | os.PathLike | None = None) -> str:
+    """SHA-256 over the names (relative to ``root`` if given) and contents of files, in the given
+    order. A missing file contributes its name and the word ``missing``."""
+    h = hashlib.sha256()
+    for p in paths:
+        p = Path(p)
+        name = os.path.relpath(p, root) if root is not None else str(p)
+        h.update(name.encode() + b"\0")
+        h.update(p.read_bytes() if p.is_file() else b"missing")
+        h.update(b"\0")
+    return h.hexdigest()
+
+
+def scene_files(scene_path: str | os.PathLike) -> list[Path]:
+    """The scene file and every file it depends on, found by reading the XML.
+
+    Every ``file="..."`` attribute (``<include>``, meshes, textures, ``<model>`` of an
+    ``<attach>``) is resolved the way MuJoCo does -- relative to the folder of the top-level
+    file, under the ``meshdir``/``texturedir``/``assetdir`` given in the file that names it --
+    and, failing that, relative to the folder of the file that names it. Included or attached
+    XML files are read in turn. The list is sorted and has no duplicates; files that cannot be
+    found are kept (their absence is part of the hash).
+
+    Parameters
+    ----------
+    scene_path : path
+        The scene's MJCF file.
+
+    Returns
+    -------
+    files : list of pathlib.Path
+    """
+    top = Path(scene_path).resolve()
+    seen: set[Path] = set()
+    todo = [top]
+    while todo:
+        path = todo.pop()
+        if path in seen:
+            continue
+        seen.add(path)
+        if path.suffix.lower() != ".xml" or not path.is_file():
+            continue
+        text = path.read_text(errors="replace")
+        text = re.sub(r"<!--.*?-->", "", text, flags=re.S)
+        dirs = [d for _, d in _DIR_ATTR.findall(text)]
+        for name in _FILE_ATTR.findall(text):
+            candidates = [top.parent / d / name for d in dirs] + [top.parent / name,
+                                                                  path.parent / name]
+            found = next((c.resolve() for c in candidates if c.is_file()), None)
+            todo.append(found if found is not None else (path.parent / name).resolve())
+    return sorted(seen)
+
+
+def scene_hash(scene_path: str | os.PathLike) -> str:
+    """Hash of a scene file and every file it depends on (:func:`scene_files`)."""
+    top = Path(scene_path).resolve()
+    return hash_files(scene_files(top), root=top.parent)
+
+
+def source_hash(modules: Iterable) -> str:
+    """Hash of the source files of Python modules or packages (a package: every ``.py`` file
+    under it), so that a change of the code that computes a stage invalidates its results."""
+    files: list[Path] = []
+    for m in modules:
+        f = Path(m.__file__)
+        if f.name == "__init__.py":
+            files += sorted(f.parent.rglob("*.py"))
+        else:
+            files.append(f)
+    return hash_files(files, root=Path(os.path.commonpath([str(f) for f in files])))
+
+
+def stage_key(stage: str, inputs: dict) -> str:
+    """Cache key ``<stage>-<hash>`` of a stage's inputs (a JSON-serialisable dict)."""
+    if not re.fullmatch(r"[A-Za-z0-9_.]+", stage):
+        raise ValueError(f"stage name must be letters, digits, '_' or '.', got {stage!r}")
+    text = json.dumps(inputs, sort_keys=True, default=str)
+    return f"{stage}-{hash_bytes(text.encode())[:KEY_LENGTH]}"
+
+
+def write_json_atomic(path: str | os.PathLike, obj) -> Path:
+    """Write ``obj`` as JSON (indent 2) to a temporary file beside ``path``, then rename it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            json.dump(obj, fh, indent=2, allow_nan=False, default=_json_default)
+            fh.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
+    """Write bytes to a temporary file beside ``path``, then rename it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _json_default(o):
+    import numpy as np
+
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def cached_stage(root: str | os.PathLike, stage: str, inputs: dict,
+                 build: Callable[[Path], dict]) -> tuple[Path, dict, bool]:
+    """The output folder of a stage, built by ``build`` unless a complete one exists.
+
+    Parameters
+    ----------
+    root : path
+        Cache folder (``OUT/cache``).
+    stage : str
+        Stage name (``capture_a``, ``reconstruct``, ...).
+    inputs : dict
+        Everything the stage's result depends on (JSON-serialisable).
+    build : callable
+        ``build(folder) -> metadata``: writes the stage's files into the (empty, temporary)
+        ``folder`` and returns a JSON-serialisable dict (e.g. timings), stored as ``stage.json``.
+
+    Returns
+    -------
+    folder : pathlib.Path
+        ``root/<stage>-<hash>``.
+    metadata : dict
+        ``build``'s dict plus ``inputs``, ``key`` and ``build_s`` (seconds ``build`` took).
+    hit : bool
+        True if the folder was already there (nothing was built).
+    """
+    root = Path(root)
+    key = stage_key(stage, inputs)
+    final = root / key
+    meta_path = final / STAGE_FILE
+    if meta_path.is_file():
+        log.info("cache hit: %s", final)
+        return final, json.loads(meta_path.read_text()), True
+    root.mkdir(parents=True, exist_ok=True)
+    for stale in root.glob(f".{key}.*.tmp"):
+        shutil.rmtree(stale, ignore_errors=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{key}.", suffix=".tmp", dir=root))
+    try:
+        t0 = time.perf_counter()
+        meta = dict(build(tmp) or {})
+        meta.update(key=key, inputs=inputs, build_s=time.perf_counter() - t0)
+        write_json_atomic(tmp / STAGE_FILE, meta)
+        if final.exists():  # an incomplete folder (no stage.json) from an older layout
+            shutil.rmtree(final)
+        os.replace(tmp, final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return final, meta, False
