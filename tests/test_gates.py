@@ -1,0 +1,96 @@
+"""Accuracy gates on the bundled scenes (issue 7): the whole method, scored against ground truth.
+
+Each scene runs once (module-scoped fixture): capture both configurations with the arm, SfM
+reconstruction from the images alone, registration by the camera centres, manipulation along the
+estimated joint; then every gate is its own test so a report shows which figure failed.
+
+Views: ``GATE_VIEWS`` per full ring (18: rings of 18/18/18/7 images per configuration, 20 degrees
+apart) keeps the three scenes inside ~25 minutes on the 2-core CI machine; the default of the
+command line (36) is what the reported figures use. The results are cached in a temporary folder
+per session (``sim.cache``), so re-running a failed gate in the same session costs nothing.
+
+Gates (``sim.evaluate.GATES``, never loosened here): joint type correct, axis angle <= 2 deg,
+axis position <= 5 mm (revolute), state error <= 2 deg or 5 mm, segmentation accuracy >= 0.95,
+manipulation achieved within 10% of requested.
+"""
+
+import os
+
+import pytest
+
+import sim  # noqa: F401
+from sim import evaluate
+
+#: Views per full capture ring in the gates (see the module docstring).
+GATE_VIEWS = int(os.environ.get("ARTRECON_GATE_VIEWS", "18"))
+#: The bundled scenes the gates run on (the issue's three; the others are reported by
+#: ``python -m sim.evaluate`` until they pass).
+GATE_SCENES = ("pliers", "truck", "drawer")
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    out = tmp_path_factory.mktemp("gates")
+    ev = evaluate.EvalConfig(views=GATE_VIEWS, seed=0, progress=False)
+    return {name: evaluate.evaluate_scene(name, ev, out) for name in GATE_SCENES}
+
+
+def _scene(results, name):
+    r = results[name]
+    assert r["error"] is None, f"{name} failed: {r['error']}"
+    return r
+
+
+def _joints(results, name):
+    r = _scene(results, name)
+    assert r["joints"], f"{name}: no moving joint in the scene"
+    return r["joints"]
+
+
+@pytest.mark.parametrize("name", GATE_SCENES)
+def test_joint_types_correct(results, name):
+    for j in _joints(results, name):
+        assert j["type_correct"], (f"{name}/{j['name']}: true {j['type_true']}, estimated "
+                                   f"{j['type_estimated']}")
+
+
+@pytest.mark.parametrize("name", GATE_SCENES)
+def test_axis_angle(results, name):
+    for j in _joints(results, name):
+        assert j["axis_angle_deg"] is not None, f"{name}/{j['name']}: no matching joint"
+        assert j["axis_angle_deg"] <= evaluate.GATES["axis_angle_deg"], (name, j)
+
+
+@pytest.mark.parametrize("name", GATE_SCENES)
+def test_axis_position(results, name):
+    for j in _joints(results, name):
+        if j["type_true"] != "revolute":
+            assert j["axis_position_mm"] is None  # no meaning for a prismatic axis
+            continue
+        assert j["axis_position_mm"] is not None, f"{name}/{j['name']}: no matching hinge"
+        assert j["axis_position_mm"] <= evaluate.GATES["axis_position_mm"], (name, j)
+
+
+@pytest.mark.parametrize("name", GATE_SCENES)
+def test_state_error(results, name):
+    for j in _joints(results, name):
+        gate = evaluate.GATES[f"state_error_{j['state_error_unit']}"]
+        assert j["state_error"] is not None, f"{name}/{j['name']}: no state (wrong type?)"
+        assert j["state_error"] <= gate, (name, j)
+
+
+@pytest.mark.parametrize("name", GATE_SCENES)
+def test_segmentation_accuracy(results, name):
+    r = _scene(results, name)
+    assert r["segmentation_accuracy"] >= evaluate.GATES["segmentation_accuracy"], \
+        (name, r["segmentation"])
+
+
+@pytest.mark.parametrize("name", GATE_SCENES)
+def test_manipulation_achieves_request(results, name):
+    man = _scene(results, name)["manipulation"]
+    assert man and man.get("requested") is not None, f"{name}: no manipulation: {man}"
+    rel = abs(man["achieved"] - man["requested"]) / abs(man["requested"])
+    assert rel <= evaluate.GATES["manipulation_relative_error"], (name, man)
