@@ -11,10 +11,13 @@ camera poses (metres) when poses were given.
 
 Background. The object stands on a table in a room; neither the background nor the object's base
 moves between A and B, but the two SfM models are independent, so the background would join the
-base link's rigid set. It is removed before matching and from the dense points by
+base link's rigid set (and its points the base link). It is told apart by
 :func:`artrecon.dense.object_region`: points far from where the cameras' optical axes meet
 (relative to the camera distance) are dropped, and so is the support plane the cameras all look
-down on (with everything beyond it).
+down on (with everything beyond it). Segmentation and the link point sets use the object only. A
+sample of background points is matched as well, for one purpose: the link whose A->B transform
+carries the background along is the base, the root of the kinematic tree (without background
+matches, the largest link is the root).
 
 Output folder (written whole or not at all: built in a temporary sibling folder, then renamed)::
 
@@ -22,7 +25,8 @@ Output folder (written whole or not at all: built in a temporary sibling folder,
     OUT/links/link_<k>.ply            dense oriented points of each link (model frame)
     OUT/a/sparse/0, OUT/b/sparse/0    the SfM models in COLMAP's layout (+ database.db, colmap.log)
     OUT/a/dense.ply, OUT/b/dense.ply  the object's dense points of each configuration (own frame)
-    OUT/matches.npz                   the 3D-3D matches (points_a, points_b, ids, votes, labels)
+    OUT/matches.npz                   the 3D-3D matches (points_a, points_b, ids, votes, labels,
+                                      background_a, background_b)
 """
 
 from __future__ import annotations
@@ -44,7 +48,7 @@ from artrecon.dense import DenseConfig, DensePoints, RegionConfig, dense_points,
 from artrecon.errors import InputError, ReconstructionError
 from artrecon.features import MatchConfig, match_configurations
 from artrecon.io import Intrinsics, load_cameras_json, load_image_folder, parse_intrinsics
-from artrecon.joints import JointConfig, estimate_joints
+from artrecon.joints import JointConfig, KinematicTree, build_kinematic_tree, estimate_joints
 from artrecon.model import ArticulatedModel, Link
 from artrecon.procrustes import rigid_transform
 from artrecon.segment import Segmentation, SegmentationConfig, segment_links
@@ -57,6 +61,16 @@ log = logging.getLogger(__name__)
 #: configuration's dense surface.
 ASSIGN_RESIDUAL_FACTOR = 3.0
 ASSIGN_SPACING_FACTOR = 2.0
+#: Background 3D points (per configuration) that take part in the matching, only to tell which
+#: link stays put with the room (the root). A sample keeps the matching cost down.
+BACKGROUND_SAMPLE = 3000
+#: Fewest background matches a link must explain to be taken for the base (else: the largest
+#: link is the root).
+MIN_BACKGROUND_MATCHES = 20
+#: Background points lie far from the object (walls) and are less precise than the object's:
+#: a background match fits a link within 2x the link's inlier distance or this fraction of the
+#: scene size, whichever is larger.
+BACKGROUND_TOLERANCE = 0.01
 
 
 @dataclass(frozen=True)
@@ -156,6 +170,60 @@ def merge_equivalent_links(points_a: np.ndarray, points_b: np.ndarray,
                         thresholds=[thresholds[k] for k in order],
                         scene_size_a=seg.scene_size_a, scene_size_b=seg.scene_size_b,
                         hypotheses=list(seg.hypotheses), rms=rms)
+
+
+def static_link(segmentation: Segmentation, background_a: np.ndarray,
+                background_b: np.ndarray) -> int | None:
+    """The link that moves with the static background (the base), or None if unclear.
+
+    Parameters
+    ----------
+    segmentation : Segmentation
+    background_a, background_b : (m, 3) float
+        Matched background points (table, room) of configuration A and B.
+
+    Returns
+    -------
+    int or None
+        Link whose A->B transform explains the most background matches (see
+        BACKGROUND_TOLERANCE); None when it explains fewer than MIN_BACKGROUND_MATCHES or not
+        twice as many as any other link.
+    """
+    if len(background_a) < MIN_BACKGROUND_MATCHES:
+        return None
+    counts = []
+    for k, T in enumerate(segmentation.transforms):
+        thr = segmentation.thresholds[k] if segmentation.thresholds else 0.0
+        thr = max(2.0 * thr, BACKGROUND_TOLERANCE * segmentation.scene_size_b)
+        res = np.linalg.norm(T.apply(background_a) - background_b, axis=1)
+        counts.append(int((res < thr).sum()))
+    order = np.argsort(counts)[::-1]
+    log.info("background matches (%d) explained per link: %s", len(background_a), counts)
+    best = int(order[0])
+    second = counts[order[1]] if len(order) > 1 else 0
+    if counts[best] < MIN_BACKGROUND_MATCHES or counts[best] < 2 * second:
+        return None
+    return best
+
+
+def reroot(tree: KinematicTree, root: int) -> KinematicTree:
+    """The same tree with another root (edges re-oriented, breadth-first from the new root)."""
+    n = len(tree.parents)
+    nbrs: dict[int, list[int]] = {k: [] for k in range(n)}
+    for p, c in tree.edges:
+        nbrs[p].append(c)
+        nbrs[c].append(p)
+    parents = np.full(n, -1)
+    edges, queue, seen = [], [root], {root}
+    while queue:
+        u = queue.pop(0)
+        for v in sorted(nbrs[u]):
+            if v not in seen:
+                seen.add(v)
+                parents[v] = u
+                edges.append((u, v))
+                queue.append(v)
+    return KinematicTree(root=root, parents=parents, edges=edges, gaps=tree.gaps)
 
 
 def assign_dense_to_links(dense_a: DensePoints, dense_b: DensePoints, points_a: np.ndarray,
@@ -295,7 +363,7 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
          work: Path, seed: int, config: ReconstructConfig, progress: bool) -> ArticulatedModel:
     timings: dict[str, float] = {}
     console = sys.stderr if progress else None
-    sfms, denses, regions = {}, {}, {}
+    sfms, denses, regions, backgrounds = {}, {}, {}, {}
     for key, iset, intr, poses in (("a", set_a, intr_a, poses_a), ("b", set_b, intr_b, poses_b)):
         t = time.perf_counter()
         sfm = run_sfm(iset, work / key, intr, poses, config.sfm, seed, progress)
@@ -312,19 +380,39 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
         rec = sfm.reconstruction
         ids = np.array(list(rec.point3D_ids()), dtype=np.int64)
         xyz = np.array([rec.points3D[int(i)].xyz for i in ids])
-        regions[key] = set(ids[object_region(xyz, centres, axes, config.region, seed)].tolist())
+        on_object = object_region(xyz, centres, axes, config.region, seed)
+        regions[key] = set(ids[on_object].tolist())
+        bg = ids[~on_object]
+        if len(bg) > BACKGROUND_SAMPLE:
+            bg = np.random.default_rng(seed).choice(bg, BACKGROUND_SAMPLE, replace=False)
+        backgrounds[key] = set(bg.tolist())
         write_ply(work / key / "dense.ply", dense.points, dense.normals, dense.colors)
         sfms[key], denses[key] = sfm, dense
     t = time.perf_counter()
-    matches = match_configurations(sfms["a"], sfms["b"], config.match, seed, regions["a"],
-                                   regions["b"])
+    matches = match_configurations(sfms["a"], sfms["b"], config.match, seed,
+                                   regions["a"] | backgrounds["a"],
+                                   regions["b"] | backgrounds["b"])
+    in_a = np.isin(matches.point3D_ids_a, list(regions["a"]))
+    in_b = np.isin(matches.point3D_ids_b, list(regions["b"]))
+    background = matches.subset(~in_a & ~in_b)
+    matches = matches.subset(in_a & in_b)
     timings["match"] = time.perf_counter() - t
     t = time.perf_counter()
     seg = segment_links(matches.points_a, matches.points_b, config.segmentation, seed=seed)
     seg = merge_equivalent_links(matches.points_a, matches.points_b, seg)
+    tree = build_kinematic_tree(matches.points_a, seg, config.joints)
+    root = static_link(seg, background.points_a, background.points_b)
+    if root is None:
+        log.warning("the background does not show which link is the base; the largest link "
+                    "(%d) is taken as the root", tree.root)
+    elif root != tree.root:
+        tree = reroot(tree, root)
+    joints = estimate_joints(matches.points_a, matches.points_b, seg, config.joints, tree=tree)
+    timings["segment_joints"] = time.perf_counter() - t
     np.savez(work / "matches.npz", points_a=matches.points_a, points_b=matches.points_b,
              point3D_ids_a=matches.point3D_ids_a, point3D_ids_b=matches.point3D_ids_b,
-             votes=matches.votes, labels=seg.labels)
+             votes=matches.votes, labels=seg.labels, background_a=background.points_a,
+             background_b=background.points_b)
     joints = estimate_joints(matches.points_a, matches.points_b, seg, config.joints)
     timings["segment_joints"] = time.perf_counter() - t
     t = time.perf_counter()
@@ -342,13 +430,11 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
                           colours=col, normals=nrm, name=f"link_{k}"))
         write_ply(work / "links" / f"link_{k}.ply", pts, nrm, col)
     timings["assign"] = time.perf_counter() - t
-    children = {j.child for j in joints}
-    roots = [k for k in range(len(links)) if k not in children]
     metric = poses_a is not None and poses_b is not None
     model = ArticulatedModel(
         links=links, joints=joints, scale=1.0,
         frames={"T_world_model": np.eye(4)} if metric else {},
-        root=roots[0] if roots else 0, scale_a_to_b=float(seg.scale), scale_known=metric,
+        root=tree.root, scale_a_to_b=float(seg.scale), scale_known=metric,
         metadata={
             "artrecon_version": __version__, "seed": seed,
             "images_a": str(set_a.root), "images_b": str(set_b.root),
@@ -360,6 +446,8 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
             "sparse_points": {k: s.reconstruction.num_points3D() for k, s in sfms.items()},
             "dense_points": {k: len(d) for k, d in denses.items()},
             "matches": len(matches), "match_outliers": int((seg.labels < 0).sum()),
+            "background_matches": len(background),
+            "root_from": "background" if root is not None else "largest link",
             "link_matches": seg.sizes.tolist(),
             "dense_unassigned": {"a": int((lab_a < 0).sum()), "b": int((lab_b < 0).sum())},
             "config": _jsonable(asdict(config)),
