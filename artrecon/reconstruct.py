@@ -52,7 +52,7 @@ from artrecon.joints import JointConfig, KinematicTree, build_kinematic_tree, es
 from artrecon.model import ArticulatedModel, Link
 from artrecon.procrustes import rigid_transform
 from artrecon.segment import Segmentation, SegmentationConfig, segment_links
-from artrecon.sfm import SfMConfig, SfMResult, run_sfm
+from artrecon.sfm import SfMConfig, SfMResult, layout_error, run_sfm
 
 log = logging.getLogger(__name__)
 
@@ -367,6 +367,18 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     for key, iset, intr, poses in (("a", set_a, intr_a, poses_a), ("b", set_b, intr_b, poses_b)):
         t = time.perf_counter()
         sfm = run_sfm(iset, work / key, intr, poses, config.sfm, seed, progress)
+        if poses is None and iset.cameras_file is not None:
+            reference = load_cameras_json(iset.cameras_file)[1]
+            if len(reference) >= 3:
+                err = layout_error(sfm, reference)
+                log.info("configuration %s: SfM cameras vs cameras.json poses: %.2f%% of their "
+                         "spread", key.upper(), 100 * err)
+                if err > config.sfm.max_layout_error:
+                    raise ReconstructionError(
+                        f"configuration {key.upper()}: the SfM cameras disagree with the poses in "
+                        f"{iset.cameras_file} by {100 * err:.1f}% of their spread (a folded or "
+                        "broken camera ring); use the poses (--use-poses) or more overlapping "
+                        "views")
         timings[f"sfm_{key}"] = time.perf_counter() - t
         t = time.perf_counter()
         dense = dense_points(sfm, config.dense, console)

@@ -59,6 +59,10 @@ class SfMConfig:
     """Fewer registered images than this share of the set is a failure (views would be missing)."""
     num_threads: int = -1
     """Threads for COLMAP (-1 = all cores)."""
+    max_layout_error: float = 0.05
+    """When reference poses exist (cameras.json) but SfM ran from the images, the SfM camera
+    centres, aligned by a similarity, must match them within this fraction of the cameras' spread
+    (a folded ring of cameras is far off; a good model is ~0.1% off)."""
 
 
 @dataclass
@@ -388,3 +392,23 @@ def run_sfm(image_set: ImageSet, out_dir: str | Path, intrinsics: Intrinsics | N
              image_set.root, rec.num_reg_images(), len(image_set.names), rec.num_points3D(),
              rec.compute_mean_reprojection_error())
     return SfMResult(rec, db_path, image_set.image_dir, model_dir, len(image_set.names), timings)
+
+
+def layout_error(result: SfMResult, poses: dict[str, np.ndarray]) -> float:
+    """RMS distance between the SfM camera centres, aligned by a similarity (Umeyama), and the
+    reference centres, as a fraction of the reference centres' RMS spread.
+
+    Reprojection error cannot reveal a ring of cameras folded onto itself (every image registers
+    at 0.1 px); this can, when the capture comes with reference poses.
+    """
+    from artrecon.procrustes import similarity_transform
+
+    T = result.T_world_camera()
+    names = sorted(n for n in T if n in poses)
+    if len(names) < 3:
+        raise ValueError(f"layout_error: need 3 or more images with both poses, got {len(names)}")
+    src = np.array([T[n][:3, 3] for n in names])
+    dst = np.array([poses[n][:3, 3] for n in names])
+    S = similarity_transform(src, dst)
+    spread = np.sqrt(np.mean(np.sum((dst - dst.mean(0)) ** 2, axis=1)))
+    return float(np.sqrt(np.mean(np.sum((S.apply(src) - dst) ** 2, axis=1))) / spread)

@@ -151,3 +151,27 @@ def test_known_poses_fast_path(rendered, reconstruction_poses):
         err = [np.linalg.norm(centres[n] - truth.T_world_camera[i, :3, 3])
                for i, n in enumerate(truth.names)]
         assert max(err) < 1e-6
+
+
+def test_layout_error_catches_a_folded_ring():
+    """A ring folded onto a half ring registers fine but is far from the reference layout."""
+    from types import SimpleNamespace
+
+    ang = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    ref = {f"{i:02d}": np.eye(4) for i in range(24)}
+    for i, a in enumerate(ang):
+        ref[f"{i:02d}"][:3, 3] = [np.cos(a), np.sin(a), 0.5]
+
+    def result(centres):
+        out = {}
+        for i, c in enumerate(centres):
+            T = np.eye(4)
+            T[:3, 3] = c
+            out[f"{i:02d}"] = T
+        return SimpleNamespace(T_world_camera=lambda: out)
+
+    good = [2.0 * ref[f"{i:02d}"][:3, 3] + 1.0 for i in range(24)]
+    folded_ang = np.where(ang < np.pi, ang, 2 * np.pi - ang)
+    folded = [[np.cos(a), np.sin(a), 0.5] for a in folded_ang]
+    assert sfm.layout_error(result(good), ref) < 1e-9
+    assert sfm.layout_error(result(folded), ref) > sfm.SfMConfig().max_layout_error
