@@ -13,10 +13,16 @@
         depth/000.png             uint16 depth along the optical axis, 1 unit = 0.1 mm, 0 = none
         labels/000.png            uint8 label: object link index, 253 arm, 254 stage, 255 nothing
 
-The views lie on rings around the object (:mod:`sim.views`); the arm reaches each by inverse
-kinematics and MuJoCo moves it there with its position servos (physics, joint-space interpolation),
-then the image is rendered with pyrender (:mod:`sim.render`) at the wrist camera's true pose. The
-set is written to a temporary folder beside DIR and renamed, so DIR is whole or absent.
+The views lie on rings around the object, each ring's distance and elevation chosen so that the
+arm reaches every view of it without a collision (:func:`sim.views.plan_capture`); the arm reaches
+each by inverse kinematics and MuJoCo moves it there with its position servos (physics, joint-space
+interpolation), then the image is rendered with pyrender (:mod:`sim.render`) at the wrist camera's
+true pose. The object is at rest while it is photographed: its joints are held at the
+configuration's values by stiff joint equalities (:meth:`sim.scene.Scene.with_joint_holds`; joint
+friction alone lets a loaded hinge creep over the minutes of a capture), and every physics step
+is checked for contacts of the arm, so that an arm that touches the object (or the table, or
+itself) is an error, not a hold that quietly absorbs it. The set is written to a temporary folder
+beside DIR and renamed, so DIR is whole or absent.
 """
 
 from __future__ import annotations
@@ -53,10 +59,9 @@ MOVE_SPEED = 1.0
 SETTLE_SPEED = 1e-3
 #: ... or after this much simulated time (s), whichever is first.
 SETTLE_MAX_TIME = 2.0
-#: Contacts of the arm links are checked every this many physics steps while it moves.
-PATH_CHECK_EVERY = 10
 #: The object may not move while the arm works around it: its joints must stay within this of
 #: the configuration (rad or m); 0.1 mrad / 0.1 mm is below anything a reconstruction resolves.
+#: The joint holds keep loaded hinges within 1e-5 of it (sim.scene.HOLD_SOLREF).
 OBJECT_DRIFT_TOL = 1e-4
 
 #: Label codes in ground_truth/labels/*.png.
@@ -71,7 +76,8 @@ DEPTH_PNG_SCALE = 1e-4
 
 
 class CaptureError(RuntimeError):
-    """The capture cannot produce a usable image set (too few reachable views, object moved)."""
+    """The capture cannot produce a usable image set (too few reachable views, the arm touched
+    something on its way, the object moved)."""
 
 
 @dataclass
@@ -170,6 +176,8 @@ class _Arm:
             model, mujoco.mjtObj.mjOBJ_JOINT, n)] for n in kin.joint_names])
         self.aidx = robot.actuator_indices(model, kin)
         self.links = views.arm_link_bodies(model, kin)
+        #: geoms of the arm links, to test every physics step's contacts cheaply
+        self.arm_geom = np.isin(model.geom_bodyid, sorted(self.links))
 
     def place(self, q):
         """Start the arm at ``q`` (the robot's initial pose)."""
@@ -178,8 +186,16 @@ class _Arm:
         self.data.ctrl[self.aidx] = q
         mujoco.mj_forward(self.model, self.data)
 
+    def _step(self, hits: set[str]) -> None:
+        """One physics step; contacts of the arm links (with anything) go into ``hits``."""
+        m, d = self.model, self.data
+        mujoco.mj_step(m, d)
+        if d.ncon and self.arm_geom[d.contact.geom[: d.ncon]].any():
+            hits.update(views.arm_collisions(m, d, self.links))
+
     def move(self, q) -> list[str]:
-        """Drive to ``q`` on a straight joint-space line, then settle; returns contacts met."""
+        """Drive to ``q`` on a straight joint-space line, then settle; returns the contacts of
+        the arm met at any physics step on the way."""
         m, d = self.model, self.data
         dt = m.opt.timestep
         q0 = d.ctrl[self.aidx].copy()
@@ -187,11 +203,9 @@ class _Arm:
         hits: set[str] = set()
         for i in range(1, steps + 1):
             d.ctrl[self.aidx] = q0 + (q - q0) * (i / steps)
-            mujoco.mj_step(m, d)
-            if i % PATH_CHECK_EVERY == 0:
-                hits.update(views.arm_collisions(m, d, self.links))
+            self._step(hits)
         for _ in range(int(SETTLE_MAX_TIME / dt)):
-            mujoco.mj_step(m, d)
+            self._step(hits)
             if np.max(np.abs(d.qvel[self.vidx])) < SETTLE_SPEED:
                 break
         mujoco.mj_forward(m, d)
@@ -221,7 +235,8 @@ def _check_out_dir(out_dir: Path, overwrite: bool) -> Path:
 def capture(scene, config: str, out_dir, *, n_views: int = 36,
             elevations_deg: tuple[float, ...] = (20.0, 40.0, 60.0),
             top_elevations_deg: tuple[float, ...] = (70.0,), fill: float = 0.6,
-            top_fill: float = 0.8, seed: int = 0,
+            fill_range: tuple[float, float] = (0.45, 0.75),
+            max_elevation_shift_deg: float = 10.0, seed: int = 0,
             free_camera_fallback: bool = False, overwrite: bool = False,
             progress: bool = True) -> CaptureResult:
     """Capture one image set of a scene in one configuration of its object.
@@ -237,8 +252,10 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
     n_views : int
         Views per full ring (36 keeps neighbours 10 degrees apart, as the method needs); rings near
         the top get proportionally fewer.
-    elevations_deg, top_elevations_deg, fill, top_fill
-        Ring layout, see :class:`sim.views.ViewPlanConfig`.
+    elevations_deg, top_elevations_deg, fill, fill_range, max_elevation_shift_deg
+        Ring layout, see :class:`sim.views.ViewPlanConfig`: desired elevations, the preferred
+        share of the image the object fills and the band each ring's distance may take, and how
+        far a ring's elevation may move when no distance in the band lets the arm reach all of it.
     seed : int
         Seeds each ring's first azimuth and the IK restarts. Same arguments, same files.
     free_camera_fallback : bool
@@ -257,34 +274,36 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
         raise ValueError(f"unknown configuration {config!r}; choose one of {CONFIGS}")
     plan_cfg = views.ViewPlanConfig(views_per_ring=n_views, elevations_deg=tuple(elevations_deg),
                                     top_elevations_deg=tuple(top_elevations_deg), fill=fill,
-                                    top_fill=top_fill, seed=seed)
+                                    fill_range=tuple(fill_range),
+                                    max_elevation_shift_deg=max_elevation_shift_deg, seed=seed)
     out_dir = _check_out_dir(Path(out_dir), overwrite)
     t_start = time.perf_counter()
-    sc = _load(scene)
+    # the scene with its object joints held still while the arm works (sim.scene joint holds)
+    sc = _load(scene).with_joint_holds()
     model = sc.model
     data = sc.make_data(config)  # arm at its home keyframe, object in the configuration
+    sc.hold(data, config)
 
     kin = robot.load_arm_kinematics(model)
     cam_name = kin.spec.prefix + kin.spec.camera
     cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, cam_name)
     K, (width, height) = mujoco_camera_intrinsics(model, cam_name)
     joints_config = sc.configuration(config)
-    centre, radius = views.object_bounding_sphere(model, data)
-    distance = views.ring_distance(radius, K, width, height, fill)
-    top_distance = views.ring_distance(radius, K, width, height, top_fill)
-    planned = views.plan_views(centre, distance, plan_cfg, top_distance)
-    plan = views.ViewPlan(centre=centre, radius=radius, distance=distance,
-                          top_distance=top_distance, views=views.order_for_rail(planned, kin))
-    log.info("%s config %s: %d views on %d rings at %.3f m around the object (radius %.3f m)",
-             sc.name, config, len(plan.views), len(views.ring_sizes(plan_cfg)), distance, radius)
 
-    bar = tqdm(total=2 * len(plan.views), desc=f"capture {sc.name}/{config}", unit="view",
+    expected = sum(n for _, n in views.ring_sizes(plan_cfg))
+    bar = tqdm(total=2 * expected, desc=f"capture {sc.name}/{config}", unit="view",
                disable=not progress)
-    views.solve_views(model, data, kin, plan.views, seed=seed, progress=bar)
+    plan = views.plan_capture(model, data, kin, K, width, height, plan_cfg, progress=bar)
+    centre, radius = plan.centre, plan.radius
     t_plan = time.perf_counter()
+    log.info("%s config %s: %d views on %d rings around the object (radius %.3f m): %s", sc.name,
+             config, len(plan.views), len(plan.rings), radius,
+             ", ".join(f"{np.rad2deg(r.elevation):.1f} deg at {r.distance:.3f} m"
+                       for r in plan.rings))
     reachable = plan.reachable
     to_take = [v for v in plan.views if v.reachable or free_camera_fallback]
     bar.total = len(plan.views) + len(to_take)
+    bar.n = len(plan.views)
     bar.refresh()
     if len(to_take) < MIN_CAPTURED_VIEWS:
         bar.close()
@@ -316,7 +335,12 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
             if view.reachable:
                 path_hits = arm.move(view.q)
                 if path_hits:
-                    log.warning("view %d: the arm touched %s on its way", i, ", ".join(path_hits))
+                    raise CaptureError(
+                        f"the arm touched {', '.join(path_hits)} on its way to view {i} of "
+                        f"{sc.name!r} (ring {view.ring}, azimuth "
+                        f"{np.rad2deg(view.azimuth):.0f} deg): the planned views are "
+                        "collision-free but the straight joint-space move between them is not; "
+                        "try other elevations or --views")
             joints_now = _joint_values(sc, data)
             drift = max((abs(joints_now[k] - joints_config[k]) for k in joints_now), default=0.0)
             if drift > OBJECT_DRIFT_TOL:
@@ -363,7 +387,6 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
                 "link_poses": {li.name: _as_list(np.r_[np.c_[
                     data.xmat[li.body_id].reshape(3, 3), data.xpos[li.body_id]], [[0, 0, 0, 1]]])
                     for li in sc.links},
-                "arm_path_contacts": path_hits,
             })
             bar.update(1)
         bar.close()
@@ -383,8 +406,13 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
         report = {
             "scene": sc.name, "config": config, "seed": seed, "views_per_ring": n_views,
             "elevations_deg": list(elevations_deg), "top_elevations_deg": list(top_elevations_deg),
-            "fill": fill, "top_fill": top_fill, "ring_distance_m": distance,
-            "top_ring_distance_m": top_distance,
+            "fill": fill, "fill_range": list(fill_range),
+            "max_elevation_shift_deg": max_elevation_shift_deg,
+            "rings": [{"ring": r.index, "n_views": r.n_views,
+                       "desired_elevation_deg": float(np.rad2deg(r.desired_elevation)),
+                       "elevation_deg": float(np.rad2deg(r.elevation)),
+                       "distance_m": r.distance, "fill": r.fill,
+                       "candidates_tried": r.candidates_tried} for r in plan.rings],
             "planned": len(plan.views), "captured": len(to_take),
             "free_camera_images": free, "unreachable": unreachable,
         }
@@ -440,7 +468,8 @@ def main(argv=None) -> int:
                    help="views per full ring (default 36: neighbours 10 degrees apart)")
     p.add_argument("--seed", type=int, default=0, help="seed of ring phases and IK restarts")
     p.add_argument("--fill", type=float, default=0.6,
-                   help="object's bounding-sphere diameter as a share of the shorter image side")
+                   help="preferred share of the shorter image side the object's bounding sphere "
+                        "fills (each ring may take 0.45-0.75 so that the arm reaches it)")
     p.add_argument("--free-camera-fallback", action="store_true",
                    help="photograph views the arm cannot reach with a free camera")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")

@@ -2,8 +2,9 @@
 
 One small capture (8 views on one ring) of the pliers is made per test session and checked:
 its files, the FK poses it records, and its ground-truth depth and labels against MuJoCo ray
-casts (``mj_ray`` intersects the very mesh triangles MuJoCo holds). The full view plans of every
-bundled scene are checked for reachability in slow tests.
+casts (``mj_ray`` intersects the very mesh triangles MuJoCo holds). The planner's choice of ring
+distance and elevation, the joint holds and the per-step contact check are tested on small cases;
+the full view plans of every bundled scene are checked for reachability in slow tests.
 """
 
 import json
@@ -17,7 +18,7 @@ from PIL import Image
 from sim import capture as C
 from sim import robot, views
 from sim.camera import mujoco_camera_intrinsics
-from sim.scene import list_scenes, load_scene
+from sim.scene import HOLD_PREFIX, list_scenes, load_scene
 
 #: Rendered depth, back-projected with the recorded (FK) pose, must lie within this of the true
 #: surface (issue 3).
@@ -155,14 +156,15 @@ def test_failed_capture_leaves_nothing(tmp_path, monkeypatch):
 
 
 def test_unreachable_views_are_reported_or_taken_by_a_free_camera(tmp_path, monkeypatch):
-    real = views.solve_views
+    real = views.plan_capture
 
-    def two_unreachable(model, data, kin, vs, **kw):
-        real(model, data, kin, vs, **kw)
-        for v in vs[3:5]:
+    def two_unreachable(*args, **kw):
+        plan = real(*args, **kw)
+        for v in plan.views[3:5]:
             v.q, v.reason = None, "made unreachable by the test"
+        return plan
 
-    monkeypatch.setattr(views, "solve_views", two_unreachable)
+    monkeypatch.setattr(views, "plan_capture", two_unreachable)
     res = C.capture("pliers", "a", tmp_path / "arm_only", **{**SMALL, "n_views": 10})
     assert res.n_planned == 10 and res.n_captured == 8 and len(res.unreachable) == 2
     assert all(u["reason"] == "made unreachable by the test" for u in res.unreachable)
@@ -217,11 +219,92 @@ def test_ring_sizes_keep_neighbours_within_ten_degrees():
         gap = 2 * np.arcsin(np.cos(el) * np.sin(np.pi / n))
         assert np.rad2deg(gap) <= views.MAX_NEIGHBOUR_ANGLE_DEG + 1e-9
     plan = views.plan_views(np.zeros(3), 0.5, cfg)
+    assert len(plan) == sum(n for _, n in views.ring_sizes(cfg))
     for v in plan:
         # every camera looks at the centre from the planned distance
         T = v.T_world_camera
         assert np.linalg.norm(T[:3, 3]) == pytest.approx(0.5)
         np.testing.assert_allclose(T[:3, 2], -T[:3, 3] / 0.5, atol=1e-12)
+
+
+def test_fill_and_distance_are_inverse():
+    K = np.array([[554.0, 0, 319.5], [0, 554.0, 239.5], [0, 0, 1]])
+    for fill in (0.45, 0.6, 0.75):
+        d = views.ring_distance(0.2, K, 640, 480, fill)
+        assert views.fill_at_distance(0.2, K, 640, 480, d) == pytest.approx(fill)
+    with pytest.raises(ValueError, match="inside the sphere"):
+        views.fill_at_distance(0.2, K, 640, 480, 0.1)
+
+
+def test_candidate_rings_prefer_the_desired_elevation_then_the_preferred_fill():
+    K = np.array([[554.0, 0, 319.5], [0, 554.0, 239.5], [0, 0, 1]])
+    cfg = views.ViewPlanConfig()
+    cands = list(views._candidates(cfg, 60.0, 0.2, K, 640, 480, 10.0, 80.0))
+    el0, d0, f0 = cands[0]
+    assert el0 == 60.0 and f0 == pytest.approx(cfg.fill)
+    els = [c[0] for c in cands]
+    # every distance of the band at the desired elevation before any other elevation
+    assert els[: els.index(next(e for e in els if e != 60.0))] == [60.0] * 7
+    assert all(abs(e - 60.0) <= cfg.max_elevation_shift_deg for e in els)
+    assert all(cfg.fill_range[0] - 1e-9 <= f <= cfg.fill_range[1] + 1e-9 for _, _, f in cands)
+    # shifted elevations come nearest first, towards 45 degrees first
+    shifts = [e - 60.0 for e in dict.fromkeys(els)]
+    assert shifts == [0.0, -2.5, 2.5, -5.0, 5.0, -7.5, 7.5, -10.0, 10.0]
+
+
+def test_planner_moves_a_ring_the_arm_cannot_reach_at_the_preferred_fill():
+    """Looking nearly straight down (85 degrees) on the truck from the preferred distance is at
+    the edge of the arm's reach on its rail (the quick probe of the ring fails); the planner takes
+    another distance in the band, where every view is reached."""
+    sc = load_scene("truck")
+    data = sc.make_data("a")
+    kin = robot.load_arm_kinematics(sc.model)
+    K, (w, h) = mujoco_camera_intrinsics(sc.model, kin.spec.prefix + kin.spec.camera)
+    cfg = views.ViewPlanConfig(views_per_ring=8, elevations_deg=(), top_elevations_deg=(85.0,))
+    plan = views.plan_capture(sc.model, data, kin, K, w, h, cfg)
+    (ring,) = plan.rings
+    assert len(plan.views) == ring.n_views and not plan.unreachable
+    assert ring.candidates_tried > 1
+    assert cfg.fill_range[0] <= ring.fill <= cfg.fill_range[1] and ring.fill != cfg.fill
+    assert abs(np.rad2deg(ring.elevation) - 85.0) <= cfg.max_elevation_shift_deg
+    # the preferred ring really is out of reach: the reason the planner moved
+    preferred = views.ring_views(plan.centre, views.Ring(
+        index=0, desired_elevation=ring.desired_elevation, elevation=ring.desired_elevation,
+        distance=views.ring_distance(plan.radius, K, w, h, cfg.fill), fill=cfg.fill,
+        n_views=ring.n_views, azimuth0=ring.azimuth0, top=True))
+    preferred = views.order_for_rail(preferred, kin)
+    probe = preferred[:: max(1, len(preferred) // views.PROBE_VIEWS)]
+    views.solve_views(sc.model, data, kin, probe, seed=cfg.seed,
+                      restarts=views.PROBE_IK_RESTARTS, stop_at_first_failure=True)
+    if all(v.reachable for v in probe):
+        views.solve_views(sc.model, data, kin, preferred, seed=cfg.seed)
+        views.check_paths(sc.model, data, kin, preferred)
+    assert any(not v.reachable for v in preferred)
+
+
+def test_held_object_stays_and_an_arm_hitting_it_is_seen_at_every_step():
+    """Holds keep the tipped truck bed still through a long stay, where friction lets it creep;
+    driving the arm into the object shows the contacts (the hold does not hide them)."""
+    sc = load_scene("truck").with_joint_holds()
+    model = sc.model
+    data = sc.make_data("b")
+    sc.hold(data, "b")
+    assert data.eq_active[model.equality(HOLD_PREFIX + "truck_bed_hinge").id]
+    kin = robot.load_arm_kinematics(model)
+    arm = C._Arm(model, data, kin)
+    q_home = data.qpos[arm.qidx].copy()
+    arm.place(q_home)
+    for _ in range(int(5.0 / model.opt.timestep)):
+        mujoco.mj_step(model, data)
+    bed = sc.joint("truck_bed_hinge")
+    assert abs(data.qpos[bed.qpos_adr] - bed.value_b) < 1e-5
+    # a camera pose inside the truck's cab: the wrist must pass through the object to get there
+    centre, _ = views.object_bounding_sphere(model, data)
+    T = robot.look_at_pose(centre + [0.0, 0.0, 0.05], centre + [0.3, 0.0, 0.0])
+    ik = robot.solve_view_ik(kin, T, q_home)
+    assert ik.success
+    hits = arm.move(ik.q)
+    assert any("truck" in h for h in hits), hits
 
 
 @pytest.mark.slow
@@ -233,18 +316,31 @@ def test_every_planned_view_of_the_bundled_scenes_is_reachable(scene, config):
     data = sc.make_data(config)
     kin = robot.load_arm_kinematics(model)
     K, (w, h) = mujoco_camera_intrinsics(model, kin.spec.prefix + kin.spec.camera)
-    centre, radius = views.object_bounding_sphere(model, data)
     cfg = views.ViewPlanConfig()
-    distance = views.ring_distance(radius, K, w, h, cfg.fill)
-    top = views.ring_distance(radius, K, w, h, cfg.top_fill)
-    plan = views.order_for_rail(views.plan_views(centre, distance, cfg, top), kin)
-    views.solve_views(model, data, kin, plan)
-    bad = [(v.ring, round(np.rad2deg(v.azimuth)), v.reason) for v in plan if not v.reachable]
-    assert not bad, f"{len(bad)} of {len(plan)} views unreachable: {bad[:3]}"
+    plan = views.plan_capture(model, data, kin, K, w, h, cfg)
+    bad = [(v.ring, round(np.rad2deg(v.azimuth)), v.reason) for v in plan.views
+           if not v.reachable]
+    assert not bad, f"{len(bad)} of {len(plan.views)} views unreachable: {bad[:3]}"
+    # every ring: within the fill band and near its desired elevation, neighbours within 10 deg
+    assert len(plan.rings) == len(cfg.elevations_deg) + len(cfg.top_elevations_deg)
+    for ring in plan.rings:
+        assert cfg.fill_range[0] - 1e-9 <= ring.fill <= cfg.fill_range[1] + 1e-9
+        assert abs(np.rad2deg(ring.elevation - ring.desired_elevation)) <= (
+            cfg.max_elevation_shift_deg + 1e-9)
+        gap = 2 * np.arcsin(np.cos(ring.elevation) * np.sin(np.pi / ring.n_views))
+        assert np.rad2deg(gap) <= views.MAX_NEIGHBOUR_ANGLE_DEG + 1e-9
     links = views.arm_link_bodies(model, kin)
     qidx = robot.qpos_indices(model, kin)
-    for v in plan:
+    for v in plan.views:
+        # collision-free (table, object, floor and the arm itself) ...
         data.qpos[qidx] = v.q
         mujoco.mj_forward(model, data)
         assert not views.arm_collisions(model, data, links)
-        np.testing.assert_allclose(kin.camera_pose(v.q), v.T_world_camera, atol=1e-3)
+        # ... and the camera where the view wants it, looking at the object's centre
+        T = kin.camera_pose(v.q)
+        np.testing.assert_allclose(T, v.T_world_camera, atol=1e-3)
+        np.testing.assert_allclose(T[:3, 3] + v.distance * T[:3, 2], plan.centre, atol=1e-3)
+    # the moves between the views touch nothing either
+    again = [views.View(**{**v.__dict__}) for v in plan.views]
+    views.check_paths(model, data, kin, again)
+    assert all(v.reachable for v in again)
