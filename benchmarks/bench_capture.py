@@ -3,12 +3,14 @@
 Usage: ``python benchmarks/bench_capture.py [SCENE ...] [--views N] [--frames F]``. Prints, per
 scene: the time to build the pyrender scene, the time per rendered frame (colour only, and colour
 plus depth and labels) at the wrist camera's resolution, and one full capture (planning, arm
-motion, rendering, writing) with its reachable view count. Timings only; nothing is asserted.
+motion, rendering, writing) with its reachable view count and the rings the planner chose
+(distance, elevation, candidates tried). Timings only; nothing is asserted.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import tempfile
 import time
 from pathlib import Path
@@ -53,11 +55,16 @@ def bench_capture(name: str, n_views: int) -> None:
         t0 = time.perf_counter()
         res = capture.capture(name, "a", Path(tmp) / "set", n_views=n_views, progress=False)
         total = time.perf_counter() - t0
+        rings = json.loads((Path(tmp) / "set" / "capture.json").read_text())["rings"]
     t = res.timings
     print(f"{name:8s} capture {res.n_captured}/{res.n_planned} views: {total:6.1f} s per set "
           f"(plan {t['plan_s']:.1f} s, move {t['move_s']:.1f} s, render {t['render_s']:.1f} s, "
           f"{total / max(1, res.n_captured):.2f} s per image; FK vs MuJoCo camera "
           f"{res.max_fk_position_error:.1e} m, {np.rad2deg(res.max_fk_rotation_error):.1e} deg)")
+    print(f"{name:8s} rings: " + ", ".join(
+        f"{r['elevation_deg']:.1f} deg (wanted {r['desired_elevation_deg']:.0f}) at "
+        f"{r['distance_m']:.3f} m, fill {r['fill']:.2f}, {r['candidates_tried']} tried"
+        for r in rings) + f"; planning {t['plan_s'] / max(1, res.n_planned):.2f} s per view")
 
 
 def main() -> None:
