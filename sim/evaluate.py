@@ -540,7 +540,8 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
         for c in ("a", "b"):
             stage = f"capture_{c}"
             folder, meta, hit = capture_stage(scene, c, ev, cache_root, scene_hash)
-            sets[c], _ = folder, keys.append(meta["key"])
+            sets[c] = folder
+            keys.append(meta["key"])
             timings[stage] = meta["build_s"]
             result["cached_stages"] += [stage] if hit else []
             result[f"capture_{c}"] = {k: meta[k] for k in
