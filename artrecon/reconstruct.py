@@ -64,13 +64,12 @@ ASSIGN_SPACING_FACTOR = 2.0
 #: Background 3D points (per configuration) that take part in the matching, only to tell which
 #: link stays put with the room (the root). A sample keeps the matching cost down.
 BACKGROUND_SAMPLE = 3000
-#: Fewest background matches a link must explain to be taken for the base (else: the largest
-#: link is the root).
+#: Fewest background matches needed to pick the root from them (else: the largest link).
 MIN_BACKGROUND_MATCHES = 20
-#: Background points lie far from the object (walls) and are less precise than the object's:
-#: a background match fits a link within 2x the link's inlier distance or this fraction of the
-#: scene size, whichever is larger.
-BACKGROUND_TOLERANCE = 0.01
+#: The base's median background residual must be below this fraction of every other link's.
+#: Background points (walls) are triangulated less precisely than the object, so no absolute
+#: inlier distance fits them; but a moving link displaces them by far more than their noise.
+BACKGROUND_MARGIN = 0.5
 
 
 @dataclass(frozen=True)
@@ -185,23 +184,19 @@ def static_link(segmentation: Segmentation, background_a: np.ndarray,
     Returns
     -------
     int or None
-        Link whose A->B transform explains the most background matches (see
-        BACKGROUND_TOLERANCE); None when it explains fewer than MIN_BACKGROUND_MATCHES or not
-        twice as many as any other link.
+        Link whose A->B transform gives the background matches the smallest median residual;
+        None with fewer than MIN_BACKGROUND_MATCHES matches or when that median is not below
+        BACKGROUND_MARGIN x every other link's.
     """
     if len(background_a) < MIN_BACKGROUND_MATCHES:
         return None
-    counts = []
-    for k, T in enumerate(segmentation.transforms):
-        thr = segmentation.thresholds[k] if segmentation.thresholds else 0.0
-        thr = max(2.0 * thr, BACKGROUND_TOLERANCE * segmentation.scene_size_b)
-        res = np.linalg.norm(T.apply(background_a) - background_b, axis=1)
-        counts.append(int((res < thr).sum()))
-    order = np.argsort(counts)[::-1]
-    log.info("background matches (%d) explained per link: %s", len(background_a), counts)
+    medians = np.array([np.median(np.linalg.norm(T.apply(background_a) - background_b, axis=1))
+                        for T in segmentation.transforms])
+    log.info("background matches (%d): median residual per link %s", len(background_a),
+             np.array2string(medians, precision=4))
+    order = np.argsort(medians)
     best = int(order[0])
-    second = counts[order[1]] if len(order) > 1 else 0
-    if counts[best] < MIN_BACKGROUND_MATCHES or counts[best] < 2 * second:
+    if len(order) > 1 and medians[best] >= BACKGROUND_MARGIN * medians[order[1]]:
         return None
     return best
 
@@ -425,8 +420,6 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
              point3D_ids_a=matches.point3D_ids_a, point3D_ids_b=matches.point3D_ids_b,
              votes=matches.votes, labels=seg.labels, background_a=background.points_a,
              background_b=background.points_b)
-    joints = estimate_joints(matches.points_a, matches.points_b, seg, config.joints)
-    timings["segment_joints"] = time.perf_counter() - t
     t = time.perf_counter()
     lab_a, lab_b = assign_dense_to_links(denses["a"], denses["b"], matches.points_a,
                                          matches.points_b, seg)
