@@ -365,13 +365,22 @@ def _pnp_route(model, model_dir, set_a, scene, cams, sfm, reg, seed) -> dict:
 
 def manipulation_stage(scene: Scene, registered, joint_index: int, set_a: Path,
                        keys: list[str], ev: EvalConfig, cache_root: Path,
-                       scene_hash: str) -> tuple[dict, dict, bool]:
-    """Move the scene's first joint along the estimated joint ``joint_index`` (cached)."""
-    from sim.manipulate import joint_estimate_from_model, manipulate
+                       scene_hash: str, swapped: bool = False) -> tuple[dict, dict, bool]:
+    """Move the scene's first joint along the estimated joint ``joint_index`` (cached).
+
+    The arm grasps the scene's moving link (sim.manipulate's default candidates); when the model
+    took that link as the parent (``swapped``), the motion of the grasped link is the model's
+    joint motion reversed: same axis line, opposite direction (the requested amount stays the
+    model's motion A -> B).
+    """
+    from sim.manipulate import JointEstimate, joint_estimate_from_model, manipulate
 
     cams = _read_json(set_a / "cameras.json")
     q_last = next((im["q"] for im in reversed(cams["images"]) if im.get("q") is not None), None)
     est, _, _ = joint_estimate_from_model(registered, joint_index)
+    if swapped:
+        est = JointEstimate(est.type, -est.axis, est.point, "model (parent/child swapped)",
+                            est.name)
     amount = float(registered.joints[joint_index].motion)
     inputs = {"scene_hash": scene_hash, "keys": keys, "joint": joint_index, "seed": ev.seed,
               "estimate": {"type": est.type, "axis": est.axis.tolist(),
@@ -398,8 +407,40 @@ def _similarity_pose(T, pose: np.ndarray) -> np.ndarray:
     return out
 
 
-def score_joints(scene: Scene, registered) -> dict:
-    """Estimated joints of a registered model against the scene's moving joints."""
+def link_correspondence(labels_pred: np.ndarray, labels_true: np.ndarray) -> dict[int, int]:
+    """``{model link: scene link index}``: the one-to-one renaming that maximises the points
+    whose model link is their true link (the same Hungarian as the segmentation accuracy)."""
+    from scipy.optimize import linear_sum_assignment
+
+    p, t = np.asarray(labels_pred), np.asarray(labels_true)
+    keep = (p >= 0) & (t >= 0)
+    if not keep.any():
+        return {}
+    pid, tid = np.unique(p[keep]), np.unique(t[keep])
+    conf = np.array([[np.sum((p[keep] == a) & (t[keep] == b)) for b in tid] for a in pid])
+    rows, cols = linear_sum_assignment(-conf)
+    return {int(pid[r]): int(tid[c]) for r, c in zip(rows, cols, strict=True)}
+
+
+def _swapped(scene: Scene, tj, ej, link_map: dict[int, int] | None) -> bool:
+    """True if the estimated joint's child is the true joint's parent (or its parent the true
+    child): the model chose the other link as the fixed one, so its motion is the inverse one
+    (same axis line, opposite sense). Which link is the base is arbitrary for a two-link object
+    like the pliers, so the state is compared for the same pair of links."""
+    if not link_map:
+        return False
+    index = {li.name: k for k, li in enumerate(scene.links)}
+    child, parent = link_map.get(ej.child), link_map.get(ej.parent)
+    return (child is not None and child == index.get(tj.parent)) or \
+        (parent is not None and parent == index.get(tj.child))
+
+
+def score_joints(scene: Scene, registered, link_map: dict[int, int] | None = None) -> dict:
+    """Estimated joints of a registered model against the scene's moving joints.
+
+    ``link_map`` (:func:`link_correspondence`) lets the state be compared for the same links when
+    the model's parent and child are the true child and parent (see :func:`_swapped`).
+    """
     true = list(scene.moving_joints)
     est = list(registered.joints)
     pairs = metrics.match_joints(
@@ -424,15 +465,18 @@ def score_joints(scene: Scene, registered) -> dict:
                        axis_angle_deg=metrics.axis_angle_error_deg(ej.axis_direction, tj.axis),
                        angle_to_table_normal_deg=metrics.angle_to_normal_deg(
                            ej.axis_direction, TABLE_NORMAL))
+            swapped = _swapped(scene, tj, ej, link_map)
+            row["links_swapped"] = swapped
+            motion = -ej.motion if swapped else ej.motion
             sign = 1.0 if ej.axis_direction @ tj.axis >= 0 else -1.0
-            row["state_estimated"] = sign * ej.motion * (np.rad2deg(1.0) if ej.type == "revolute"
+            row["state_estimated"] = sign * motion * (np.rad2deg(1.0) if ej.type == "revolute"
                                                          else 1e3)
             if rev and ej.type == "revolute":
                 row["axis_position_mm"] = 1e3 * metrics.line_distance(
                     ej.axis_point, ej.axis_direction, tj.point, tj.axis)
             if ej.type == tj.type:
                 row["state_error"] = k * metrics.joint_state_error(
-                    tj.type, ej.motion, tj.motion, ej.axis_direction, tj.axis)
+                    tj.type, motion, tj.motion, ej.axis_direction, tj.axis)
         row["passes"] = joint_passes(row)
         rows.append(row)
     invented = [{"name": est[p].name, "type": est[p].type,
@@ -470,13 +514,16 @@ def score_scene(scene: Scene, registered, sfm_poses: dict, T_reg, set_a: Path,
     from artrecon.procrustes import similarity_transform
     from sim.capture import read_depth_png
 
-    out = score_joints(scene, registered)
     pts = [np.asarray(lk.points, float) for lk in registered.links]
     labels_pred = np.concatenate([np.full(len(p), k) for k, p in enumerate(pts)])
     P = np.concatenate(pts)
     samples, sample_link = sample_surface(scene, "a", seed=seed)
     labels_true = metrics.nearest_labels(P, samples, sample_link, SEGMENTATION_MAX_DISTANCE_M)
     on = labels_true >= 0
+    link_map = link_correspondence(labels_pred, labels_true)
+    out = score_joints(scene, registered, link_map)
+    out["link_correspondence"] = {registered.links[k].name: scene.links[v].name
+                                  for k, v in link_map.items()}
     out["segmentation_accuracy"] = (metrics.segmentation_accuracy(labels_pred, labels_true)
                                     if on.any() else 0.0)
     out["segmentation"] = {
@@ -607,7 +654,7 @@ def _manipulation(scene, registered, result, set_a, keys, ev, cache_root, scene_
                           "sim.manipulate grasps): nothing to follow"}
     idx = next(k for k, j in enumerate(registered.joints) if j.name == row["estimated_joint"])
     res, meta, hit = manipulation_stage(scene, registered, idx, set_a, keys, ev, cache_root,
-                                        scene_hash)
+                                        scene_hash, swapped=bool(row.get("links_swapped")))
     if hit:
         result["cached_stages"].append("manipulation")
     k = np.rad2deg(1.0) if res["joint_type"] == "revolute" else 1e3

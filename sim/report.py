@@ -238,7 +238,8 @@ def draw_reconstruction(image: np.ndarray, K: np.ndarray, T_world_camera: np.nda
         e_uv, e_z = project(ends, K, T_world_camera)
         if (e_z > 0).all():
             p0, p1 = (tuple(int(round(c)) for c in e) for e in e_uv)
-            cv2.line(img, p0, p1, colour, 3, cv2.LINE_AA)
+            # true axes (drawn first) wider, so an estimate on top of them leaves them visible
+            cv2.line(img, p0, p1, colour, 6 if colour == GREEN else 2, cv2.LINE_AA)
             cv2.circle(img, p1, 5, colour, -1, cv2.LINE_AA)
     if title:
         cv2.putText(img, title, (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1,

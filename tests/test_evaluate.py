@@ -277,3 +277,19 @@ def test_reconstruction_picture_projects_points_where_the_camera_sees_them():
     uv, z = report.project(pts, K, T)
     np.testing.assert_allclose(uv[:2], [[150, 100], [170, 110]])
     assert z[2] < 0  # behind the camera: not drawn
+
+
+def test_swapped_parent_and_child_compare_the_same_motion(truck, truck_samples):
+    """A model that took the bed as its base reports the inverse motion (opposite sense about
+    the same line): with the link correspondence the state error is still zero."""
+    model = _model_from_truth(truck, *truck_samples)
+    j = model.joints[0]
+    model.joints[0] = Joint(j.type, j.axis_direction, j.axis_point, parent=j.child,
+                            child=j.parent, state_a=0.0, state_b=-j.motion, name="inverse")
+    (row,) = evaluate.score_joints(truck, model)["joints"]
+    assert row["state_error"] == pytest.approx(2 * np.rad2deg(j.motion))  # without the map
+    link_map = {0: 0, 1: 1}
+    (row,) = evaluate.score_joints(truck, model, link_map)["joints"]
+    assert row["links_swapped"] and row["state_error"] == pytest.approx(0.0, abs=1e-9)
+    labels_pred = np.array([0, 0, 1, 1, 1])
+    assert evaluate.link_correspondence(labels_pred, np.array([1, 1, 0, 0, 1])) == {0: 1, 1: 0}
