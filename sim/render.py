@@ -115,6 +115,23 @@ def offscreen_renderer(width: int, height: int) -> pyrender.OffscreenRenderer:
     return _RENDERER
 
 
+class _OrderedScene(pyrender.Scene):
+    """A pyrender scene that hands its mesh and light nodes out in name order.
+
+    pyrender keeps nodes in sets, whose order changes between runs: lights were then summed in
+    the shader in a different order (1 grey level off on a few pixels) and geoms at the same
+    distance drawn in a different order. Sorted by name, identical inputs give identical images.
+    """
+
+    @property
+    def mesh_nodes(self):
+        return sorted(super().mesh_nodes, key=lambda n: n.name or "")
+
+    @property
+    def light_nodes(self):
+        return sorted(super().light_nodes, key=lambda n: n.name or "")
+
+
 @dataclass
 class RenderOutput:
     """One rendered view.
@@ -241,7 +258,7 @@ class MjRenderer:
             raise ValueError(f"geom labels must lie in (-{_LABEL_OFFSET}, {_LABEL_OFFSET})")
         self.geom_labels = geom_labels
         self.visible_groups = frozenset(int(g) for g in visible_groups)
-        self.scene = pyrender.Scene(bg_color=np.r_[np.asarray(bg_color, float), 1.0],
+        self.scene = _OrderedScene(bg_color=np.r_[np.asarray(bg_color, float), 1.0],
                                     ambient_light=self._ambient())
         self._textures: dict[int, pyrender.Texture] = {}
         self._texture_warned: set[int] = set()
@@ -268,7 +285,7 @@ class MjRenderer:
             if diffuse.max() > 0:
                 light = pyrender.DirectionalLight(color=diffuse / diffuse.max(),
                                                   intensity=_PBR_DIFFUSE_GAIN * diffuse.max())
-                self._headlight_node = self.scene.add(light, pose=np.eye(4))
+                self._headlight_node = self.scene.add(light, name="headlight", pose=np.eye(4))
         log.debug("pyrender scene: %d geoms, %d lights", len(self.geom_nodes),
                   len(self._light_nodes))
 
@@ -414,7 +431,7 @@ class MjRenderer:
                                                outerConeAngle=cutoff)
                 else:
                     light = pyrender.PointLight(color=colour, intensity=intensity)
-            nodes.append((i, self.scene.add(light, pose=np.eye(4))))
+            nodes.append((i, self.scene.add(light, name=f"light{i}", pose=np.eye(4))))
         return nodes
 
     # ----------------------------------------------------------------------------- per frame
