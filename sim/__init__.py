@@ -8,6 +8,3 @@ import os
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 os.environ.setdefault("MUJOCO_GL", "egl")
-# Mesa's llvmpipe rasterises with several threads, and its blending order then differs by one grey
-# level between runs on a few pixels; one thread makes every render byte-identical (determinism).
-os.environ.setdefault("LP_NUM_THREADS", "1")

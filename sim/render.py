@@ -27,18 +27,11 @@ from __future__ import annotations
 
 import atexit
 import logging
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
 import sim  # noqa: F401  (selects the EGL platform before any OpenGL import)
-
-#: Mesa's software rasteriser (llvmpipe, what EGL gives without a GPU) splits a frame over threads
-#: and then differs from run to run in a few pixels by one grey level; one thread makes renders
-#: bit-identical, so a capture repeated with the same arguments writes the same files. Must be set
-#: before the first OpenGL context of the process (sim/__init__ is the better home for it).
-os.environ.setdefault("LP_NUM_THREADS", "1")
 from sim.camera import convert_camera_pose
 
 if not hasattr(np, "infty"):  # pyrender 0.1.45 still uses the alias removed in numpy 2
