@@ -142,3 +142,22 @@ def test_whole_run_with_known_poses_recovers_the_hinge(rendered, reconstruction_
     # Links hold dense points of both configurations, the lid's on both of its sides.
     lid = model.links[model.joints[0].child]
     assert len(lid.points) > 1000 and lid.normals is not None
+
+
+def test_merge_joins_a_link_that_barely_moves_but_keeps_a_real_joint():
+    """A 0.1%-of-scene displacement is the same body; a 10%-of-scene pull is a joint."""
+    rng = np.random.default_rng(4)
+    pa = rng.random((300, 3))
+    labels = np.r_[np.zeros(150), np.ones(50), np.full(100, 2)].astype(int)
+    ident = Similarity(np.eye(3), np.zeros(3), 1.0)
+    creep = Similarity(np.eye(3), np.array([1e-3, 0, 0]), 1.0)
+    pull = Similarity(np.eye(3), np.array([0.1, 0, 0]), 1.0)
+    pb = pa.copy()
+    pb[labels == 1] = creep.apply(pa[labels == 1])
+    pb[labels == 2] = pull.apply(pa[labels == 2])
+    seg = Segmentation(labels=labels, transforms=[ident, creep, pull], scale=1.0,
+                       thresholds=[1e-5, 1e-5, 1e-5], rms=[0.0, 0.0, 0.0], scene_size_a=1.0,
+                       scene_size_b=1.0)
+    out = merge_equivalent_links(pa, pb, seg)
+    assert out.n_links == 2
+    assert np.all(out.labels[:200] == 0) and np.all(out.labels[200:] == 1)
