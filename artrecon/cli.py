@@ -1,4 +1,5 @@
-"""Command line: ``artrecon reconstruct DIR_A DIR_B --out DIR``.
+"""Command line: ``artrecon reconstruct DIR_A DIR_B --out DIR`` and
+``artrecon export MODEL --format mjcf|urdf|glb|ply --out PATH``.
 
 Exit status 0 on success, 2 on bad input, 1 when a stage fails; the message says what to try.
 """
@@ -32,14 +33,22 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     r.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     r.add_argument("--quiet", action="store_true", help="no progress bars, warnings only")
+    r.set_defaults(handler=_run_reconstruct)
+    from artrecon.export import add_export_parser
+
+    add_export_parser(sub)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``artrecon`` console script."""
     args = _parser().parse_args(argv)
-    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
+    logging.basicConfig(level=logging.WARNING if getattr(args, "quiet", False) else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
+    return args.handler(args)
+
+
+def _run_reconstruct(args: argparse.Namespace) -> int:
     from artrecon.reconstruct import reconstruct
 
     try:

@@ -394,14 +394,12 @@ def test_cli(tmp_path, capsys):
     assert "does not exist" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         ex.export_main([str(tmp_path / "model.json"), "--format", "obj", "--out", "x"])
-    # the subparser hooks into a parent CLI
-    import argparse
+    # the `artrecon export` subcommand of the console script
+    from artrecon.cli import main
 
-    parser = argparse.ArgumentParser(prog="artrecon")
-    ex.add_export_parser(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(["export", str(tmp_path / "model.json"), "--format", "urdf",
-                              "--out", str(tmp_path / "u.urdf")])
-    assert args.handler(args) == 0 and (tmp_path / "u.urdf").is_file()
+    assert main(["export", str(tmp_path / "model.json"), "--format", "urdf",
+                 "--out", str(tmp_path / "u.urdf")]) == 0
+    pin.buildModelFromUrdf(str(tmp_path / "u.urdf"))
 
 
 def test_bad_models_are_refused():
