@@ -66,6 +66,19 @@ class SfMConfig:
     (a folded ring of cameras is far off; a good model is ~0.1% off)."""
 
 
+def camera_poses(reconstruction) -> dict[str, np.ndarray]:
+    """``{image name: T_world_camera (4, 4)}`` of the registered images of a
+    ``pycolmap.Reconstruction`` (OpenCV convention, the reconstruction's world frame)."""
+    out = {}
+    for img in reconstruction.images.values():
+        if not img.has_pose:
+            continue
+        T = np.eye(4)
+        T[:3, :] = img.cam_from_world().matrix()
+        out[img.name] = np.linalg.inv(T)
+    return out
+
+
 @dataclass
 class SfMResult:
     """Output of :func:`run_sfm`.
@@ -93,14 +106,7 @@ class SfMResult:
 
     def T_world_camera(self) -> dict[str, np.ndarray]:
         """Pose (4, 4) per registered image name, OpenCV convention, SfM world frame."""
-        out = {}
-        for img in self.reconstruction.images.values():
-            if not img.has_pose:
-                continue
-            T = np.eye(4)
-            T[:3, :] = img.cam_from_world().matrix()
-            out[img.name] = np.linalg.inv(T)
-        return out
+        return camera_poses(self.reconstruction)
 
     def intrinsics(self, image_name: str) -> np.ndarray:
         """(3, 3) OpenCV K of an image (distortion, if modelled, is ignored here)."""

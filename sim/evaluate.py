@@ -261,18 +261,12 @@ def sfm_camera_poses(model_dir: Path, configuration: str = "a") -> dict[str, np.
     """``{image name: T_model_camera (4, 4)}`` of a reconstruction's SfM model (OpenCV)."""
     import pycolmap
 
+    from artrecon.sfm import camera_poses
+
     path = Path(model_dir) / configuration / "sparse" / "0"
     if not path.is_dir():
         raise FileNotFoundError(f"no SfM model at {path}: the reconstruction output lacks it")
-    rec = pycolmap.Reconstruction(str(path))
-    out = {}
-    for img in rec.images.values():
-        if not img.has_pose:
-            continue
-        T = np.eye(4)
-        T[:3, :] = img.cam_from_world().matrix()
-        out[img.name] = np.linalg.inv(T)
-    return out
+    return camera_poses(pycolmap.Reconstruction(str(path)))
 
 
 def _read_json(path: Path) -> dict:
