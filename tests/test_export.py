@@ -446,8 +446,8 @@ def test_twin_of_a_bundled_scene_moves_like_the_true_object(tmp_path, name):
     exported, driven by the true motion, its points and its visual surface land on the true
     object's surface in configuration B.
 
-    The version on a *reconstructed* model (artrecon.reconstruct on captures) is still to do:
-    the reconstruction is not on main yet.
+    The same check on the *reconstructed* model is in tests/test_gates.py, which already runs
+    the reconstruction of these scenes.
     """
     from sim.scene import load_scene
 

@@ -114,3 +114,47 @@ def test_manipulation_achieves_request(results, name):
     assert man and man.get("requested") is not None, f"{name}: no manipulation: {man}"
     rel = abs(man["achieved"] - man["requested"]) / abs(man["requested"])
     assert rel <= evaluate.GATES["manipulation_relative_error"], (name, man)
+
+
+#: Issue 8 on the reconstruction: the twin, driven by the true motion, must put its points within
+#: "a few mm" of the true surface; the median over each link's points (the reconstruction's own
+#: accuracy is 1.4-2.4 mm median in configuration A, its p90 3-6 mm).
+TWIN_MEDIAN_MM = 5.0
+
+
+@pytest.mark.parametrize("name", GATE_SCENES)
+def test_exported_twin_moves_like_the_true_object(results, name, tmp_path):
+    """The registered reconstruction exported as MJCF and URDF, its joint driven by the true
+    object's motion in MuJoCo and pinocchio: the twin's points land on the true surfaces of
+    configuration B."""
+    import numpy as np
+    from scipy.spatial import cKDTree
+    from test_export import mujoco_points, pinocchio_points
+
+    from artrecon import export as ex
+    from sim.scene import load_scene
+
+    r = _scene(results, name)
+    model = r["_registered"]
+    scene = load_scene(name)
+    (row,) = r["joints"]
+    (true_joint,) = scene.moving_joints
+    assert not row["links_swapped"], f"{name}: the twin's base is the true moving link"
+    idx = next(k for k, j in enumerate(model.joints) if j.name == row["estimated_joint"])
+    twin = ex.build_twin(model)
+    tj = twin.joints[idx]
+    assert np.sign(tj.motion) == np.sign(model.joints[idx].motion)
+    value = {tj.name: float(np.sign(tj.motion) * abs(true_joint.motion))}
+    xml = ex.export_mjcf(twin, tmp_path / f"{name}.xml")[-1]
+    urdf = ex.export_urdf(twin, tmp_path / f"{name}.urdf")[-1]
+    pts_mj, _ = mujoco_points(xml, twin, value)
+    pts_pin, _ = pinocchio_points(urdf, twin, value)
+    samples, _ = evaluate.sample_surface(scene, "b", seed=0)
+    tree = cKDTree(samples)
+    report = {}
+    for lk, p_mj, p_pin in zip(twin.links, pts_mj, pts_pin, strict=True):
+        np.testing.assert_allclose(p_mj, p_pin, atol=1e-9)
+        d = tree.query(p_mj)[0] * 1e3
+        report[lk.name] = (round(float(np.median(d)), 2), round(float(np.percentile(d, 90)), 2))
+    print(name, "twin in B, median/p90 mm per link:", report)
+    assert all(med <= TWIN_MEDIAN_MM for med, _ in report.values()), (name, report)
