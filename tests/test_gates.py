@@ -98,6 +98,26 @@ def test_segmentation_accuracy(results, name):
         (name, r["segmentation"])
 
 
+#: Issue 5 on the bundled scenes: SfM camera poses (from the images alone, then registered by
+#: the camera centres) against the true poses, and the dense points against the true surfaces.
+#: Bounds a tenth of the axis gates and below them: pose and surface errors must not be what
+#: spends the 5 mm / 2 deg budget. Measured (18 views per ring): 0.14-0.15 mm, 0.009-0.020 deg,
+#: dense median 1.4-2.4 mm.
+CAMERA_POSITION_MEDIAN_MM = 1.0
+CAMERA_ROTATION_MEDIAN_DEG = 0.1
+DENSE_ACCURACY_MEDIAN_MM = 3.0
+
+
+@pytest.mark.parametrize("name", GATE_SCENES)
+def test_camera_poses_and_dense_points(results, name):
+    r = _scene(results, name)
+    cam = r["camera_pose_error"]
+    assert cam["n"] == r["capture_a"]["n_captured"], (name, cam)  # every image registered
+    assert cam["position_median_mm"] <= CAMERA_POSITION_MEDIAN_MM, (name, cam)
+    assert cam["rotation_median_deg"] <= CAMERA_ROTATION_MEDIAN_DEG, (name, cam)
+    assert r["model"]["accuracy_median_mm"] <= DENSE_ACCURACY_MEDIAN_MM, (name, r["model"])
+
+
 @pytest.mark.parametrize("name", GATE_SCENES)
 def test_every_planned_view_captured(results, name):
     r = _scene(results, name)
