@@ -955,7 +955,7 @@ def main(argv=None) -> int:
             candidates = [GraspCandidate(a, b) for a, b in zip(pts, normals, strict=True)]
         else:
             est = joint_estimate_from_scene(scene)
-            print(f"no --model: following the GROUND-TRUTH axis of joint {est.name!r}")  # noqa: T201
+            log.warning("no --model: following the GROUND-TRUTH axis of joint %r", est.name)
         if args.tilt:
             est = est.tilted(args.tilt)
         if est.type == "revolute":
@@ -971,7 +971,7 @@ def main(argv=None) -> int:
                          prefer_hidden=not args.visible, record_every=0.05, seed=args.seed,
                          world=world)
     except (ManipulationError, ValueError, OSError) as err:
-        print(f"error: {err}", file=sys.stderr)  # noqa: T201
+        log.error("%s", err)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
     out = res.to_dict()
@@ -980,10 +980,10 @@ def main(argv=None) -> int:
     out["created"] = time.strftime("%Y-%m-%dT%H:%M:%S")
     (args.out / "manipulation.json").write_text(json.dumps(out, indent=2) + "\n")
     strip = render_strip(world, res, args.out / "strip.png")
-    print(json.dumps({k: out[k] for k in ("scene", "joint", "requested_display",  # noqa: T201
-                                          "achieved_display", "peak_force", "grasp_hidden",
-                                          "grasp_visibility")}, indent=2))
-    print(f"wrote {args.out / 'manipulation.json'} and {strip}")  # noqa: T201
+    summary = {k: out[k] for k in ("scene", "joint", "requested_display", "achieved_display",
+                                   "peak_force", "grasp_hidden", "grasp_visibility")}
+    sys.stdout.write(json.dumps(summary, indent=2) + "\n")
+    sys.stdout.write(f"wrote {args.out / 'manipulation.json'} and {strip}\n")
     return 0
 
 
