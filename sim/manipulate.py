@@ -262,7 +262,8 @@ class _World:
 def build_world(scene: Scene) -> _World:
     """Compile the scene with one inactive weld (flange body to object body) per object body."""
     spec = mujoco.MjSpec.from_file(str(scene.path))
-    flange = robot.PUMA560.prefix + robot.PUMA560.flange_body
+    arm = robot.arm_spec(scene.model)  # the scene's arm (PUMA 560, Panda, ...), not a fixed one
+    flange = arm.prefix + arm.flange_body
     bodies = [scene.model.body(b).name for li in scene.links for b in li.body_ids]
     for name in bodies:
         if not name:
@@ -373,7 +374,7 @@ def classify_visibility(world: _World, data, q, candidates) -> list[GraspCandida
     more than ``OCCLUSION_TOLERANCE`` before the point (``mujoco.mj_ray``).
     """
     m = world.model
-    cam = robot.PUMA560.prefix + robot.PUMA560.camera
+    cam = world.kin.spec.prefix + world.kin.spec.camera
     K, (w, h) = mujoco_camera_intrinsics(m, cam)
     T = world.kin.camera_pose(q)
     saved = data.qpos.copy()
