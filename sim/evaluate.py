@@ -52,13 +52,13 @@ import platform
 import sys
 import time
 import traceback
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from sim import cache, metrics
+from sim import cache, metrics, perturb
 from sim.scene import Scene, SceneError, list_scenes, load_scene, physics_warnings
 
 log = logging.getLogger(__name__)
@@ -108,6 +108,8 @@ class EvalConfig:
     """run the manipulation stage"""
     progress: bool = True
     """tqdm progress bars"""
+    perturb: perturb.Perturbation = field(default_factory=perturb.Perturbation)
+    """perturbations of a robustness run (sim.perturb; default none)"""
 
 
 class StageError(RuntimeError):
@@ -219,11 +221,12 @@ def capture_stage(scene: Scene, configuration: str, ev: EvalConfig, cache_root: 
 
     inputs = {"scene": scene.name, "scene_hash": scene_hash, "config": configuration,
               "views": ev.views, "seed": ev.seed, "version": artrecon.__version__,
-              "code": _capture_sources()}
+              "code": _capture_sources(),
+              **perturb.capture_inputs(scene, ev.perturb, configuration)}
 
     def build(folder: Path) -> dict:
-        res = capture(scene, configuration, folder / "set", n_views=ev.views, seed=ev.seed,
-                      progress=ev.progress)
+        res = capture(perturb.capture_scene(scene, ev.perturb, configuration), configuration,
+                      folder / "set", n_views=ev.views, seed=ev.seed, progress=ev.progress)
         return {"n_planned": res.n_planned, "n_captured": res.n_captured,
                 "unreachable": res.unreachable,
                 "max_fk_position_error_mm": 1e3 * res.max_fk_position_error,
@@ -574,6 +577,7 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
     try:
         scene = load_scene(name)
         result["scene"] = scene.name
+        scene = perturb.apply_motion(scene, ev.perturb.motion_deg, ev.perturb.motion_mm)
         result["scene_file"] = str(scene.path)
         scene_hash = cache.scene_hash(scene.path)
         result["scene_hash"] = scene_hash
@@ -581,8 +585,12 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
         for c in ("a", "b"):
             stage = f"capture_{c}"
             folder, meta, hit = capture_stage(scene, c, ev, cache_root, scene_hash)
+            folder, key, pmeta = perturb.set_stage(folder, meta["key"], scene, ev.perturb,
+                                                   ev.seed, c, cache_root)
             sets[c] = folder
-            keys.append(meta["key"])
+            keys.append(key)
+            if pmeta:
+                result[f"perturb_{c}"] = pmeta
             timings[stage] = meta["build_s"]
             result["cached_stages"] += [stage] if hit else []
             result[f"capture_{c}"] = {k: meta[k] for k in
@@ -601,6 +609,11 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
         result["reconstruct_timings_s"] = rt
         result["cached_stages"] += ["sfm", "dense", "matching", "segmentation_joints",
                                     "assign_points"] if hit else []
+        stage = "match_outliers"
+        model_dir, pmeta = perturb.outlier_stage(model_dir, meta["key"], ev.perturb, ev.seed,
+                                                 cache_root)
+        if pmeta:
+            result["perturb_matches"] = pmeta
         model = ArticulatedModel.load(model_dir / "model.json")
         result["model_summary"] = {"links": len(model.links), "joints": len(model.joints),
                                    **{k: model.metadata.get(k) for k in
@@ -680,6 +693,7 @@ def run(names: list[str], ev: EvalConfig, out_dir: Path, argv: list[str] | None 
     results = {"scenes": {}, "meta": {
         "versions": _versions(), "seed": ev.seed, "views_per_ring": ev.views,
         "use_poses": ev.use_poses, "manipulate": ev.manipulate,
+        "perturbation": ev.perturb.changed(),
         "command": " ".join(["python -m sim.evaluate", *(argv or [])]),
         "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "scene_hashes": {}, "gates": GATES, "platform": platform.platform()}}
@@ -778,6 +792,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="only compile and check the scenes and print their ground truth")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    perturb.add_arguments(parser)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
@@ -788,8 +803,13 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--views must be at least 4, got {args.views}")
     from sim import report
 
+    try:
+        perturbation = perturb.from_args(args)
+    except ValueError as err:
+        parser.error(str(err))
     ev = EvalConfig(views=args.views, seed=args.seed, use_poses=args.use_poses,
-                    manipulate=not args.no_manipulate, progress=not args.quiet)
+                    manipulate=not args.no_manipulate, progress=not args.quiet,
+                    perturb=perturbation)
     results = run(names, ev, args.out, argv)
     print()
     print(report.terminal_table(results))
