@@ -419,17 +419,79 @@ def link_correspondence(labels_pred: np.ndarray, labels_true: np.ndarray) -> dic
     return {int(pid[r]): int(tid[c]) for r, c in zip(rows, cols, strict=True)}
 
 
+def rigid_bodies(scene: Scene) -> np.ndarray:
+    """``(n_links,)`` int: per true link, the link it moves with between the configurations.
+
+    A link whose joint is static (:attr:`sim.scene.Joint.static`) did not move relative to its
+    parent: in the two image sets it is one rigid body with it, and no method can tell them apart.
+    Scoring treats it as part of its parent (following static joints up to a moving joint or the
+    base). Every link of a scene whose joints all move maps to itself.
+    """
+    index = {li.name: k for k, li in enumerate(scene.links)}
+    parent_of = {j.child: j.parent for j in scene.joints if j.static and j.parent in index}
+    out = []
+    for li in scene.links:
+        name, seen = li.name, set()
+        while name in parent_of and name not in seen:
+            seen.add(name)
+            name = parent_of[name]
+        out.append(index[name])
+    return np.array(out, dtype=np.int64)
+
+
+def _true_link_pair(scene: Scene, tj) -> tuple[int | None, int | None]:
+    """(parent, child) of a true joint as :func:`rigid_bodies` indices (None: the world)."""
+    index = {li.name: k for k, li in enumerate(scene.links)}
+    body = rigid_bodies(scene)
+    return tuple(int(body[index[n]]) if n in index else None for n in (tj.parent, tj.child))
+
+
 def _swapped(scene: Scene, tj, ej, link_map: dict[int, int] | None) -> bool:
     """True if the estimated joint's child is the true joint's parent (or its parent the true
     child): the model chose the other link as the fixed one, so its motion is the inverse one
     (same axis line, opposite sense). Which link is the base is arbitrary for a two-link object
-    like the pliers, so the state is compared for the same pair of links."""
+    like the pliers, so the state is compared for the same pair of links. Links are compared as
+    rigid bodies (:func:`rigid_bodies`), the indices ``link_map`` gives."""
     if not link_map:
         return False
-    index = {li.name: k for k, li in enumerate(scene.links)}
+    t_parent, t_child = _true_link_pair(scene, tj)
     child, parent = link_map.get(ej.child), link_map.get(ej.parent)
-    return (child is not None and child == index.get(tj.parent)) or \
-        (parent is not None and parent == index.get(tj.child))
+    return (child is not None and child == t_parent) or \
+        (parent is not None and parent == t_child)
+
+
+def pair_joints(scene: Scene, est: list, true: list,
+                link_map: dict[int, int] | None = None) -> list[tuple[int, int, bool]]:
+    """Pair estimated with true joints: first by the links they join, then by axis geometry.
+
+    An estimated joint joins two model links; ``link_map`` names the true rigid bodies they are
+    (:func:`link_correspondence`). It is the estimate of the true joint between those two bodies,
+    whatever its axis looks like (so a poor axis shows as a large error, not as a swap with another
+    joint of a multi-joint object). Joints left over (a wrong kinematic tree, or no link map) are
+    paired by :func:`sim.metrics.match_joints` (type, axis angle and position).
+
+    Returns
+    -------
+    list of (estimated index, true index, paired by links)
+        Sorted by true index; at most one pair per joint.
+    """
+    out = []
+    if link_map:
+        for ti, tj in enumerate(true):
+            want = set(_true_link_pair(scene, tj))
+            for p, ej in enumerate(est):
+                if p in {q for q, _, _ in out}:
+                    continue
+                if {link_map.get(ej.parent), link_map.get(ej.child)} == want:
+                    out.append((p, ti, True))
+                    break
+    rest_e = [p for p in range(len(est)) if p not in {q for q, _, _ in out}]
+    rest_t = [t for t in range(len(true)) if t not in {u for _, u, _ in out}]
+    geo = metrics.match_joints(
+        [(est[p].type, est[p].axis_point, est[p].axis_direction) for p in rest_e],
+        [(true[t].type, true[t].point, true[t].axis) for t in rest_t])
+    out += [(rest_e[a], rest_t[b], False) for a, b in geo]
+    return sorted(out, key=lambda r: r[1])
 
 
 def score_joints(scene: Scene, registered, link_map: dict[int, int] | None = None) -> dict:
@@ -440,10 +502,10 @@ def score_joints(scene: Scene, registered, link_map: dict[int, int] | None = Non
     """
     true = list(scene.moving_joints)
     est = list(registered.joints)
-    pairs = metrics.match_joints(
-        [(j.type, j.axis_point, j.axis_direction) for j in est],
-        [(j.type, j.point, j.axis) for j in true])
+    paired = pair_joints(scene, est, true, link_map)
+    pairs = [(p, t) for p, t, _ in paired]
     by_true = {t: p for p, t in pairs}
+    by_links = {t: b for _, t, b in paired}
     rows = []
     for ti, tj in enumerate(true):
         rev = tj.type == "revolute"
@@ -464,6 +526,7 @@ def score_joints(scene: Scene, registered, link_map: dict[int, int] | None = Non
                            ej.axis_direction, TABLE_NORMAL))
             swapped = _swapped(scene, tj, ej, link_map)
             row["links_swapped"] = swapped
+            row["paired_by_links"] = by_links[ti]
             motion = -ej.motion if swapped else ej.motion
             sign = 1.0 if ej.axis_direction @ tj.axis >= 0 else -1.0
             row["state_estimated"] = sign * motion * (np.rad2deg(1.0) if ej.type == "revolute"
@@ -480,10 +543,15 @@ def score_joints(scene: Scene, registered, link_map: dict[int, int] | None = Non
                  "angle_to_table_normal_deg": metrics.angle_to_normal_deg(
                      est[p].axis_direction, TABLE_NORMAL)}
                 for p in range(len(est)) if p not in {pp for pp, _ in pairs}]
+    # The right kinematic tree: one estimated joint per moving true joint, each joining the two
+    # rigid bodies that the true joint joins (judged only with a link map).
+    tree_correct = (bool(link_map) and len(est) == len(true)
+                    and all(by_links.get(t, False) for t in range(len(true))))
     return {"joints": rows, "invented_joints": invented,
             "static_joints": [j.name for j in scene.joints if j.static],
             "n_estimated_joints": len(est), "n_true_moving_joints": len(true),
-            "pairs": [(est[p].name, true[t].name) for p, t in pairs]}
+            "pairs": [(est[p].name, true[t].name) for p, t in pairs],
+            "tree_correct": tree_correct}
 
 
 def joint_passes(row: dict) -> bool:
@@ -515,7 +583,9 @@ def score_scene(scene: Scene, registered, sfm_poses: dict, T_reg, set_a: Path,
     labels_pred = np.concatenate([np.full(len(p), k) for k, p in enumerate(pts)])
     P = np.concatenate(pts)
     samples, sample_link = sample_surface(scene, "a", seed=seed)
-    labels_true = metrics.nearest_labels(P, samples, sample_link, SEGMENTATION_MAX_DISTANCE_M)
+    # a link behind a static joint is one rigid body with its parent: scored as part of it
+    labels_true = metrics.nearest_labels(P, samples, rigid_bodies(scene)[sample_link],
+                                         SEGMENTATION_MAX_DISTANCE_M)
     on = labels_true >= 0
     link_map = link_correspondence(labels_pred, labels_true)
     out = score_joints(scene, registered, link_map)
