@@ -198,3 +198,43 @@ def test_command_line_options():
                                              "--motion-deg", "5", "--mount-error-mm", "2"]))
     assert p.changed() == {"image_noise_sigma": 4.0, "match_outliers": 0.6, "motion_deg": 5.0,
                            "mount_error_mm": 2.0}
+
+
+def _model_dir(tmp_path, obj):
+    """A reconstruction folder as artrecon writes it, from a synthetic object's matches."""
+    from artrecon.model import ArticulatedModel, Link
+
+    d = tmp_path / "model"
+    for c, pts in (("a", obj.points_a), ("b", obj.points_b)):
+        (d / c).mkdir(parents=True)
+        write_ply(d / c / "dense.ply", pts, np.tile([0.0, 0.0, 1.0], (len(pts), 1)),
+                  np.zeros((len(pts), 3), np.uint8))
+    np.savez(d / "matches.npz", points_a=obj.points_a, points_b=obj.points_b,
+             background_a=np.zeros((0, 3)), background_b=np.zeros((0, 3)))
+    ArticulatedModel(links=[Link(points=obj.points_a[:3], match_indices=np.arange(3))],
+                     joints=[]).save(d / "model.json")
+    return d
+
+
+def test_resegment_redoes_joints_on_wrong_matches(tmp_path):
+    from synthetic import make_object
+
+    from artrecon.model import ArticulatedModel
+
+    obj = make_object(5, "pair", ("revolute",), points_per_link=150, noise=0.0)
+    d = _model_dir(tmp_path, obj)
+    summary = perturb.resegment(d, tmp_path / "out", 0.5, seed=0)
+    n = len(obj.points_a)
+    assert summary["made_wrong"] == round(0.5 * n)
+    saved = np.load(tmp_path / "out" / "matches.npz")
+    assert saved["wrong"].sum() == summary["made_wrong"]
+    assert np.any(saved["points_b"] != obj.points_b)
+    assert (tmp_path / "out" / "a" / "dense.ply").is_file()  # SfM/dense folders linked
+    model = ArticulatedModel.load(tmp_path / "out" / "model.json")
+    assert model.metadata["perturbation"]["made_wrong"] == summary["made_wrong"]
+    # half the matches wrong, none of them noisy: RANSAC still finds the hinge
+    (joint,) = model.joints
+    true = obj.joints[0]
+    cos = abs(float(np.dot(joint.axis_direction, true.axis_direction)))
+    assert np.rad2deg(np.arccos(min(1.0, cos))) < 0.5
+    assert summary["wrong_kept_in_links"] < 0.05 * summary["made_wrong"]

@@ -1,0 +1,281 @@
+"""Robustness sweep: how the method's axis and state errors grow with each perturbation of a
+real capture (issue 9), and where it breaks.
+
+Runs ``python -m sim.evaluate SCENE --views V --no-manipulate`` once unperturbed and once per
+(perturbation, strength) with the options of :mod:`sim.perturb` (fewer views: ``--views``), all
+sharing one stage cache (a capture or reconstruction that a run does not change is reused), and
+writes into ``OUT``:
+
+- ``runs/<perturbation>_<strength>/``: each run's own report folder (results.json, pictures);
+- ``<perturbation>.png``: axis angle error and state error against the strength, with the gate;
+  a run that failed or refused is a red cross at the top of the chart;
+- ``robustness.md`` / ``robustness.json``: the table of every run and, per perturbation, where
+  the method breaks: the first strength at which a joint gate fails, the scene's segmentation
+  gate fails, or the run refuses or fails.
+
+A full sweep takes hours on two shared cores; ``--reduced`` (2-3 strengths each) fits in well
+under one. Runs that already have ``results.json`` in ``OUT`` are not redone (``--redo``).
+Never part of the tests. Example::
+
+    nice -n 5 python benchmarks/bench_robustness.py --reduced --scene pliers --views 18 \\
+        --out runs/robustness
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+#: perturbation -> (title, strength unit, full strengths, reduced strengths, options(strength)).
+#: Strength 0 (or the run's own view count for "views") is the unperturbed baseline.
+SWEEPS = {
+    "lighting": ("lighting change A -> B (B's lights turned by s deg, dimmed to 1 - s/180)",
+                 "deg", [30, 60, 90, 135], [45, 90],
+                 lambda s: ["--light-b-rotate", str(s), "--light-b-intensity",
+                            f"{1 - s / 180:.3f}"]),
+    "noise": ("image noise (Gaussian)", "grey levels", [2, 4, 8, 16], [4, 12],
+              lambda s: ["--image-noise", str(s)]),
+    "blur": ("image blur (Gaussian)", "px", [0.5, 1, 2, 4], [1, 2.5],
+             lambda s: ["--image-blur", str(s)]),
+    "views": ("fewer views per ring", "views per ring", [24, 12, 9], [12],
+              lambda s: ["--views", str(int(s))]),
+    "motion": ("smaller joint motion (revolute cap s deg, prismatic cap 2 s mm)", "deg",
+               [15, 10, 5, 2], [10, 5],
+               lambda s: ["--motion-deg", str(s), "--motion-mm", str(2 * s)]),
+    "outliers": ("wrong cross-configuration matches", "share", [0.3, 0.5, 0.6, 0.7, 0.8],
+                 [0.5, 0.7], lambda s: ["--match-outliers", str(s)]),
+    "texture": ("less textured object (texture contrast 1 - s)", "contrast removed",
+                [0.5, 0.7, 0.9, 0.97], [0.7, 0.9],
+                lambda s: ["--texture-contrast", f"{1 - s:.3f}"]),
+    "encoder": ("arm encoder noise (per joint)", "deg", [0.05, 0.1, 0.25, 0.5, 1.0], [0.1, 0.5],
+                lambda s: ["--encoder-noise", str(s)]),
+    "mount": ("camera mount error on the wrist (s mm and s/5 deg)", "mm", [2, 5, 10, 20],
+              [5, 20], lambda s: ["--mount-error-mm", str(s), "--mount-error-deg", str(s / 5)]),
+}
+
+
+def _run_id(name: str, s) -> str:
+    return f"{name}_{s:g}".replace(".", "p")
+
+
+def run_one(out: Path, run_id: str, scene: str, views: int, extra: list[str], use_poses: bool,
+            redo: bool) -> dict:
+    """One evaluation (subprocess), sharing ``out/cache``; returns its scene result."""
+    folder = out / "runs" / run_id
+    res_path = folder / "results.json"
+    if redo or not res_path.is_file():
+        folder.mkdir(parents=True, exist_ok=True)
+        link = folder / "cache"
+        if not link.exists():
+            os.symlink(os.path.relpath(out / "cache", folder), link)
+        cmd = [sys.executable, "-m", "sim.evaluate", scene, "--views", str(views),
+               "--no-manipulate", "--quiet", "--out", str(folder), *extra]
+        if use_poses:
+            cmd.append("--use-poses")
+        t = time.perf_counter()
+        with open(folder / "log.txt", "w") as log:
+            subprocess.run(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, check=False)
+        print(f"{run_id}: {time.perf_counter() - t:.0f} s", flush=True)
+    if not res_path.is_file():
+        return {"error": f"no results.json (see {folder / 'log.txt'})"}
+    scenes = json.loads(res_path.read_text())["scenes"]
+    return next(iter(scenes.values()))
+
+
+def summarise(res: dict, gates: dict) -> dict:
+    """The figures of one run: first true joint's errors, gates, refusal or failure."""
+    row = {"error": res.get("error"), "axis_angle_deg": None, "axis_position_mm": None,
+           "state_error": None, "state_unit": None, "joint_passes": False,
+           "segmentation_accuracy": res.get("segmentation_accuracy"),
+           "scale_error_pct": res.get("scale_error_pct"),
+           "camera_position_error_mm": None}
+    joints = res.get("joints") or []
+    if joints:
+        j = joints[0]
+        row.update(axis_angle_deg=j.get("axis_angle_deg"),
+                   axis_position_mm=j.get("axis_position_mm"), state_error=j.get("state_error"),
+                   state_unit=j.get("state_error_unit"),
+                   joint_passes=all(bool(x.get("passes")) for x in joints),
+                   estimated=j.get("estimated_joint") is not None)
+    cpe = res.get("camera_pose_error") or {}
+    row["camera_position_error_mm"] = cpe.get("position_median_mm")
+    seg_ok = (row["segmentation_accuracy"] is not None
+              and row["segmentation_accuracy"] >= gates["segmentation_accuracy"])
+    row["passes"] = bool(not row["error"] and row["joint_passes"] and seg_ok)
+    row["refused"] = bool(row["error"] and ("Weak" in row["error"] or "refus" in row["error"]))
+    return row
+
+
+# ---------------------------------------------------------------------------- pictures
+
+
+def _text(img, s, org, scale=0.45, colour=(40, 40, 40), thick=1):
+    cv2.putText(img, s, org, cv2.FONT_HERSHEY_SIMPLEX, scale, colour, thick, cv2.LINE_AA)
+
+
+def plot_panel(img, box, xs, ys, fails, gate, title, xlabel, ylabel):
+    """A line chart in ``box`` (x0, y0, x1, y1) of ``img`` (BGR): values, the gate (dashed),
+    failed runs as red crosses at the top."""
+    x0, y0, x1, y1 = box
+    px0, py0, px1, py1 = x0 + 60, y0 + 30, x1 - 15, y1 - 45
+    cv2.rectangle(img, (px0, py0), (px1, py1), (120, 120, 120), 1)
+    _text(img, title, (x0 + 8, y0 + 18), 0.5, (0, 0, 0), 1)
+    finite = [v for v in ys if v is not None]
+    top = max([gate * 2.0] + [min(v, 10 * gate) for v in finite]) * 1.1
+    xmin, xmax = min(xs), max(xs)
+    span = (xmax - xmin) or 1.0
+
+    def X(x):
+        return int(px0 + 10 + (x - xmin) / span * (px1 - px0 - 20))
+
+    def Y(y):
+        return int(py1 - min(y, top) / top * (py1 - py0))
+
+    for k in range(5):
+        v = top * k / 4
+        cv2.line(img, (px0 - 4, Y(v)), (px0, Y(v)), (120, 120, 120), 1)
+        _text(img, f"{v:.2g}", (x0 + 8, Y(v) + 4), 0.38)
+    for x in xs:
+        cv2.line(img, (X(x), py1), (X(x), py1 + 4), (120, 120, 120), 1)
+        _text(img, f"{x:g}", (X(x) - 10, py1 + 18), 0.38)
+    _text(img, xlabel, ((px0 + px1) // 2 - 4 * len(xlabel), y1 - 8), 0.42)
+    _text(img, ylabel, (px0 + 4, py0 - 4 + 18), 0.38, (90, 90, 90))
+    for xa in range(px0, px1, 12):  # dashed gate line
+        cv2.line(img, (xa, Y(gate)), (min(xa + 6, px1), Y(gate)), (0, 140, 255), 1)
+    _text(img, f"gate {gate:g}", (px1 - 70, Y(gate) - 5), 0.38, (0, 110, 220))
+    pts = [(X(x), Y(y)) for x, y, f in zip(xs, ys, fails, strict=True) if y is not None]
+    for a, b in zip(pts, pts[1:], strict=False):
+        cv2.line(img, a, b, (200, 90, 30), 2, cv2.LINE_AA)
+    for x, y, f in zip(xs, ys, fails, strict=True):
+        if y is None:
+            c = (X(x), py0 + 10)
+            cv2.line(img, (c[0] - 6, c[1] - 6), (c[0] + 6, c[1] + 6), (30, 30, 220), 2)
+            cv2.line(img, (c[0] - 6, c[1] + 6), (c[0] + 6, c[1] - 6), (30, 30, 220), 2)
+            continue
+        colour = (30, 30, 220) if f else (40, 170, 40)
+        cv2.circle(img, (X(x), Y(y)), 5, colour, -1, cv2.LINE_AA)
+        if y > top:
+            _text(img, f"{y:.3g}", (X(x) + 6, Y(y) + 12), 0.38, (30, 30, 220))
+
+
+def plot_sweep(path: Path, title: str, unit: str, xs, rows, gates):
+    img = np.full((330, 900, 3), 255, np.uint8)
+    _text(img, title, (10, 20), 0.55, (0, 0, 0), 1)
+    fails = [not r["passes"] for r in rows]
+    axis = [r["axis_angle_deg"] for r in rows]
+    state = [r["state_error"] for r in rows]
+    su = next((r["state_unit"] for r in rows if r["state_unit"]), "deg")
+    plot_panel(img, (0, 30, 450, 330), xs, axis, fails, gates["axis_angle_deg"],
+               "axis angle error", f"strength ({unit})", "deg")
+    plot_panel(img, (450, 30, 900, 330), xs, state, fails,
+               gates["state_error_deg" if su == "deg" else "state_error_mm"],
+               "joint state error", f"strength ({unit})", su)
+    ok, buf = cv2.imencode(".png", img)
+    path.write_bytes(buf.tobytes())
+
+
+# ---------------------------------------------------------------------------- report
+
+
+def _f(v, d=2):
+    return "-" if v is None else (f"{v:.{d}f}" if isinstance(v, float) else str(v))
+
+
+def write_report(out: Path, args, table: dict, gates: dict) -> None:
+    lines = [f"# Robustness sweep: {args.scene}, {args.views} views per ring"
+             f"{', FK camera poses (--use-poses)' if args.use_poses else ', SfM from images'}",
+             "", f"Command: `python benchmarks/bench_robustness.py "
+             f"{' '.join(sys.argv[1:])}`; each run is `python -m sim.evaluate` without "
+             "manipulation (run folders under `runs/`). Gates: axis angle "
+             f"{gates['axis_angle_deg']} deg, axis position {gates['axis_position_mm']} mm, "
+             f"state {gates['state_error_deg']} deg / {gates['state_error_mm']} mm, segmentation "
+             f"{gates['segmentation_accuracy']}. Errors are of the scene's first moving joint.",
+             "", "## Where the method breaks", "",
+             "| perturbation | strengths run | breaks at | how |", "| --- | --- | --- | --- |"]
+    for title, unit, xs, rows in table.values():
+        brk = next(((x, r) for x, r in zip(xs, rows, strict=True) if not r["passes"]), None)
+        if brk is None:
+            where, how = f"not within {max(xs):g} {unit}", "every run passes"
+        else:
+            x, r = brk
+            where = f"{x:g} {unit}"
+            if r["error"]:
+                how = ("refused: " if r["refused"] else "failed: ") + r["error"][:120]
+            else:
+                how = (f"gate fails: axis {_f(r['axis_angle_deg'])} deg, position "
+                       f"{_f(r['axis_position_mm'])} mm, state {_f(r['state_error'])} "
+                       f"{r['state_unit'] or ''}, segmentation "
+                       f"{_f(r['segmentation_accuracy'], 3)}")
+        lines.append(f"| {title} | {', '.join(f'{x:g}' for x in xs)} | {where} | {how} |")
+    lines += ["", "## Every run", ""]
+    for name, (title, unit, xs, rows) in table.items():
+        lines += [f"### {title}", "", f"![{name}]({name}.png)", "",
+                  f"| strength ({unit}) | axis angle (deg) | axis position (mm) | state error | "
+                  "segmentation | scale error (%) | passes | error |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for x, r in zip(xs, rows, strict=True):
+            lines.append(
+                f"| {x:g} | {_f(r['axis_angle_deg'])} | {_f(r['axis_position_mm'])} | "
+                f"{_f(r['state_error'])} {r['state_unit'] or ''} | "
+                f"{_f(r['segmentation_accuracy'], 3)} | {_f(r['scale_error_pct'])} | "
+                f"{'yes' if r['passes'] else 'no'} | {(r['error'] or '')[:160]} |")
+        lines.append("")
+    (out / "robustness.md").write_text("\n".join(lines) + "\n")
+    (out / "robustness.json").write_text(json.dumps(
+        {k: {"title": t, "unit": u, "strengths": xs, "runs": rows}
+         for k, (t, u, xs, rows) in table.items()}, indent=2) + "\n")
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--scene", default="pliers")
+    p.add_argument("--views", type=int, default=18, help="views per ring of every run (18)")
+    p.add_argument("--out", type=Path, default=ROOT / "runs" / "robustness")
+    p.add_argument("--reduced", action="store_true", help="2-3 strengths per perturbation")
+    p.add_argument("--only", nargs="*", choices=sorted(SWEEPS), help="these perturbations")
+    p.add_argument("--use-poses", action="store_true", help="reconstruct from FK camera poses")
+    p.add_argument("--redo", action="store_true", help="rerun runs that have results")
+    args = p.parse_args(argv)
+    from sim.evaluate import GATES
+
+    out = args.out.resolve()
+    (out / "cache").mkdir(parents=True, exist_ok=True)
+    names = args.only or list(SWEEPS)
+    base = summarise(run_one(out, "baseline", args.scene, args.views, [], args.use_poses,
+                             args.redo), GATES)
+    table = {}
+    for name in names:
+        title, unit, full, reduced, opts = SWEEPS[name]
+        strengths = reduced if args.reduced else full
+        xs = [args.views] if name == "views" else [0]
+        rows = [base]
+        for s in strengths:
+            extra = opts(s)
+            views = args.views
+            if name == "views":
+                views, extra = int(s), []
+            res = run_one(out, _run_id(name, s), args.scene, views, extra, args.use_poses,
+                          args.redo)
+            xs.append(s)
+            rows.append(summarise(res, GATES))
+            table[name] = (title, unit, xs, rows)
+            plot_sweep(out / f"{name}.png", title, unit, xs, rows, GATES)
+            write_report(out, args, table, GATES)
+    write_report(out, args, table, GATES)
+    print(f"report: {out / 'robustness.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
