@@ -1,7 +1,9 @@
 """Command line: ``artrecon reconstruct DIR_A DIR_B --out DIR`` and
 ``artrecon export MODEL --format mjcf|urdf|glb|ply --out PATH``.
 
-Exit status 0 on success, 2 on bad input, 1 when a stage fails; the message says what to try.
+Exit status 0 on success, 2 on bad input, 1 when a stage fails (also when the evidence for a joint
+is too weak: artrecon.errors.WeakEvidenceError), 130 when interrupted; the message says what to
+try, without a traceback.
 """
 
 from __future__ import annotations
@@ -61,11 +63,23 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
     except ArtreconError as exc:
         print(f"artrecon: reconstruction failed: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:  # disk full, no permission to write the output folder...
+        print(f"artrecon: error: {exc}; nothing was written to {args.out}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"artrecon: interrupted; nothing was written to {args.out} (run again to start "
+              "over)", file=sys.stderr)
+        return 130
     print(f"wrote {args.out}: {len(model.links)} links, {len(model.joints)} joints")
     for j in model.joints:
         unit = "rad" if j.type == "revolute" else "model units"
         print(f"  {j.name}: {j.type}, axis {j.axis_direction.round(4).tolist()} through "
               f"{j.axis_point.round(4).tolist()}, moved {j.motion:.4f} {unit}")
+        c = j.confidence
+        if c:
+            print(f"    confidence {c['score']:.2f}: matches {c['parent']['inliers']} + "
+                  f"{c['child']['inliers']}, motion {c['motion']['snr']:.0f} x noise, axis "
+                  f"spread {c['bootstrap']['axis_spread_deg']:.2f} deg")
     return 0
 
 

@@ -23,3 +23,18 @@ class NoMotionError(DegenerateError):
 
 class SingleBodyError(DegenerateError):
     """Everything moved as one rigid body (one link found): no joint can be observed."""
+
+
+class WeakEvidenceError(ReconstructionError):
+    """The matches do not determine a joint well enough (too few inliers, a motion below the
+    noise, an ill-conditioned axis): refused rather than answered wrongly.
+
+    Attributes
+    ----------
+    records : list of dict
+        The confidence record of every joint (artrecon.confidence), refused or not.
+    """
+
+    def __init__(self, message: str, records: list | None = None):
+        super().__init__(message)
+        self.records = list(records or [])

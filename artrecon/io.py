@@ -17,8 +17,12 @@ image whose ``T_world_camera`` is null has no known pose.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
+import os
+import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -51,6 +55,9 @@ class ImageSet:
         Common image size in pixels.
     cameras_file : Path or None
         ``cameras.json`` of a capture, if present.
+    digests : tuple of str
+        SHA-1 of each image file's bytes, in the order of ``names`` (to tell identical image sets
+        apart from merely similar ones).
     """
 
     root: Path
@@ -58,6 +65,7 @@ class ImageSet:
     names: list[str]
     size: tuple[int, int]
     cameras_file: Path | None
+    digests: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -78,7 +86,7 @@ class Intrinsics:
     def __post_init__(self):
         K = np.asarray(self.K, dtype=float)
         if K.shape != (3, 3):
-            raise ValueError(f"intrinsics K: expected shape (3, 3), got {K.shape}")
+            raise InputError(f"intrinsics K: expected shape (3, 3), got {K.shape}")
         if K[0, 0] <= 0 or K[1, 1] <= 0:
             raise InputError(f"intrinsics K: focal lengths must be positive, got {K[0, 0]}, "
                              f"{K[1, 1]}")
@@ -129,8 +137,15 @@ def load_image_folder(path: str | Path, min_images: int = MIN_IMAGES) -> ImageSe
                          f"at least {min_images} (a ring of 20-40 overlapping views works well)")
     size = None
     first = None
+    digests = []
     for name in names:
-        img = cv2.imread(str(image_dir / name), cv2.IMREAD_UNCHANGED)
+        try:
+            data = (image_dir / name).read_bytes()
+        except OSError as exc:
+            raise InputError(f"cannot read image {image_dir / name}: {exc.strerror or exc}; check "
+                             "its permissions, or remove it") from exc
+        digests.append(hashlib.sha1(data).hexdigest())
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
         if img is None:
             raise InputError(f"cannot read image {image_dir / name}: the file is corrupt or not an "
                              "image; remove or replace it")
@@ -142,7 +157,102 @@ def load_image_folder(path: str | Path, min_images: int = MIN_IMAGES) -> ImageSe
                              f" but {name} is {this[0]}x{this[1]}; use one camera and one "
                              "resolution per image set")
     cameras = root / "cameras.json"
-    return ImageSet(root, image_dir, names, size, cameras if cameras.is_file() else None)
+    return ImageSet(root, image_dir, names, size, cameras if cameras.is_file() else None,
+                    tuple(digests))
+
+
+def check_distinct(set_a: ImageSet, set_b: ImageSet) -> None:
+    """Refuse two image sets that are the same photos: the object cannot have moved between them.
+
+    Raises
+    ------
+    InputError
+        Both name the same folder, or every image of one set is byte-identical to an image of the
+        other.
+    """
+    same_dir = set_a.image_dir.resolve() == set_b.image_dir.resolve()
+    da, db = set(set_a.digests), set(set_b.digests)
+    if same_dir or (da and db and (da <= db or db <= da)):
+        what = (f"both name the folder {set_a.image_dir}" if same_dir else
+                f"every image of {set_a.image_dir if da <= db else set_b.image_dir} is also in "
+                f"{set_b.image_dir if da <= db else set_a.image_dir} (byte for byte)")
+        raise InputError(f"configuration A and B are the same images ({what}): the object did not "
+                         "move between them. Photograph configuration B after moving a joint of "
+                         "the object (open the lid, pull the drawer), and pass that folder as B")
+    shared = len(da & db)
+    if shared:
+        log.warning("%d image(s) of %s and %s are byte-identical; configuration B should show "
+                    "the object moved", shared, set_a.image_dir, set_b.image_dir)
+
+
+#: Work folders of a run writing OUT are named ``.OUT.tmp-<pid>-<random>`` beside OUT.
+_WORK_PREFIX = ".{name}.tmp-"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def remove_stale_work_dirs(out_dir: str | Path) -> list[Path]:
+    """Remove work folders of runs that wrote ``out_dir`` and died (killed, power cut).
+
+    A run builds its output in ``.OUT.tmp-<pid>-...`` beside ``OUT`` and renames it when complete
+    (see :func:`make_work_dir`, :func:`publish_dir`), so an interrupted run leaves only such a
+    folder, never a half-written ``OUT``. Folders whose process is gone are removed; those of a
+    live process (another run writing the same output now) are left alone.
+
+    Returns
+    -------
+    list of Path
+        The folders removed.
+    """
+    out_dir = Path(out_dir)
+    removed = []
+    if not out_dir.parent.is_dir():
+        return removed
+    prefix = _WORK_PREFIX.format(name=out_dir.name)
+    for p in out_dir.parent.glob(prefix + "*"):
+        head = p.name[len(prefix):].split("-", 1)[0]
+        if p.is_dir() and head.isdigit() and not _alive(int(head)):
+            shutil.rmtree(p, ignore_errors=True)
+            removed.append(p)
+            log.info("removed %s, left by an interrupted run", p)
+    return removed
+
+
+def make_work_dir(out_dir: str | Path) -> Path:
+    """An empty work folder beside ``out_dir`` (same file system, so renaming it is atomic), after
+    removing those left by interrupted runs."""
+    out_dir = Path(out_dir)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_work_dirs(out_dir)
+    prefix = _WORK_PREFIX.format(name=out_dir.name) + f"{os.getpid()}-"
+    return Path(tempfile.mkdtemp(prefix=prefix, dir=out_dir.parent))
+
+
+def publish_dir(work: str | Path, out_dir: str | Path) -> Path:
+    """Put a complete work folder in place of ``out_dir`` by renaming.
+
+    An existing ``out_dir`` is first renamed aside (into a work-folder name, removed afterwards),
+    so at every instant ``out_dir`` is either the old complete result, absent, or the new complete
+    result.
+    """
+    work, out_dir = Path(work), Path(out_dir)
+    old = None
+    if out_dir.exists():
+        old = Path(tempfile.mkdtemp(prefix=_WORK_PREFIX.format(name=out_dir.name)
+                                    + f"{os.getpid()}-old-", dir=out_dir.parent))
+        os.replace(out_dir, old / "previous")
+    os.replace(work, out_dir)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+    return out_dir
 
 
 def parse_intrinsics(value, size: tuple[int, int] | None = None) -> Intrinsics:
@@ -168,7 +278,8 @@ def parse_intrinsics(value, size: tuple[int, int] | None = None) -> Intrinsics:
         return Intrinsics(np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), size)
     K = np.asarray(value, dtype=float)
     if K.shape != (3, 3):
-        raise ValueError(f"intrinsics: expected a (3, 3) matrix, got shape {K.shape}")
+        raise InputError(f"intrinsics: expected a (3, 3) matrix, 'fx,fy,cx,cy' or a JSON file "
+                         f"with 'K', got shape {K.shape}")
     return Intrinsics(K, size)
 
 

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import json
 import logging
+import os
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -120,6 +122,10 @@ class Joint:
     residual : float
         How far the relative motion is from a pure single joint (model units; revolute: slide
         along the axis, prismatic: rotation-induced displacement of the child).
+    confidence : dict
+        The evidence behind the joint (artrecon.confidence: inliers, residuals, motion against
+        noise, bootstrap spread of the axis, score in [0, 1], registration agreement); empty when
+        not assessed (e.g. a model written before confidence existed).
     """
 
     type: str
@@ -132,6 +138,7 @@ class Joint:
     name: str = ""
     relative_transform: Similarity = field(default_factory=Similarity)
     residual: float = 0.0
+    confidence: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.type not in JOINT_TYPES:
@@ -148,6 +155,7 @@ class Joint:
         self.state_a = float(self.state_a)
         self.state_b = float(self.state_b)
         self.residual = float(self.residual)
+        self.confidence = dict(self.confidence or {})
         if not self.name:
             self.name = f"joint_{self.parent}_{self.child}"
 
@@ -298,6 +306,7 @@ class ArticulatedModel:
                     "state_b": j.state_b,
                     "relative_transform": j.relative_transform.to_dict(),
                     "residual": j.residual,
+                    "confidence": j.confidence,
                 }
                 for j in self.joints
             ],
@@ -339,6 +348,7 @@ class ArticulatedModel:
                 name=j["name"],
                 relative_transform=Similarity.from_dict(j["relative_transform"]),
                 residual=j["residual"],
+                confidence=j.get("confidence") or {},  # absent in files before confidence
             )
             for j in d["joints"]
         ]
@@ -357,7 +367,18 @@ class ArticulatedModel:
         """Write the model as JSON (lossless); returns the path."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(self.to_dict(), indent=1))
+        text = json.dumps(self.to_dict(), indent=1)
+        # Whole or not at all: a temporary file beside the target, renamed over it when complete
+        # (a run killed while writing leaves the old file, or none, never half a model).
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "w") as fh:
+                fh.write(text)
+            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual mode
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
         log.info("saved articulated model (%d links, %d joints) to %s",
                  len(self.links), len(self.joints), path)
         return path
@@ -388,3 +409,9 @@ def _decode(d) -> np.ndarray | None:
     if d is None:
         return None
     return np.array(d["data"], dtype=np.dtype(d["dtype"])).reshape(d["shape"])
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask

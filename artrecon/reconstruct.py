@@ -32,7 +32,6 @@ Output folder (written whole or not at all: built in a temporary sibling folder,
 from __future__ import annotations
 
 import logging
-import os
 import shutil
 import sys
 import tempfile
@@ -44,10 +43,19 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from artrecon import __version__
+from artrecon.confidence import ConfidenceConfig, assess_joints
 from artrecon.dense import DenseConfig, DensePoints, RegionConfig, dense_points, object_region
 from artrecon.errors import InputError, ReconstructionError
 from artrecon.features import MatchConfig, match_configurations
-from artrecon.io import Intrinsics, load_cameras_json, load_image_folder, parse_intrinsics
+from artrecon.io import (
+    Intrinsics,
+    check_distinct,
+    load_cameras_json,
+    load_image_folder,
+    make_work_dir,
+    parse_intrinsics,
+    publish_dir,
+)
 from artrecon.joints import JointConfig, KinematicTree, build_kinematic_tree, estimate_joints
 from artrecon.model import ArticulatedModel, Link
 from artrecon.procrustes import rigid_transform
@@ -88,6 +96,7 @@ class ReconstructConfig:
     match: MatchConfig = field(default_factory=MatchConfig)
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
     joints: JointConfig = field(default_factory=JointConfig)
+    confidence: ConfidenceConfig = field(default_factory=ConfidenceConfig)
 
 
 def _cameras(sfm: SfMResult) -> tuple[np.ndarray, np.ndarray]:
@@ -343,13 +352,13 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
     poses_pair = poses if isinstance(poses, (tuple, list)) else (poses, poses)
     set_a, intr_a, poses_a = _resolve_inputs(images_a, pair[0], poses_pair[0], "A")
     set_b, intr_b, poses_b = _resolve_inputs(images_b, pair[1], poses_pair[1], "B")
+    check_distinct(set_a, set_b)
     if out_dir is not None:
         out_dir = Path(out_dir)
         if out_dir.exists() and not overwrite:
             raise InputError(f"output folder {out_dir} exists; choose another or pass "
                              "overwrite=True (--overwrite)")
-        out_dir.parent.mkdir(parents=True, exist_ok=True)
-        work = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp-", dir=out_dir.parent))
+        work = make_work_dir(out_dir)  # also removes those of interrupted runs
     else:
         work = Path(tempfile.mkdtemp(prefix="artrecon-"))
     try:
@@ -358,9 +367,7 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
         model.metadata["timings"]["total"] = time.perf_counter() - t_all
         if out_dir is not None:
             model.save(work / "model.json")
-            if out_dir.exists():
-                shutil.rmtree(out_dir)
-            os.replace(work, out_dir)
+            publish_dir(work, out_dir)
             log.info("wrote %s", out_dir)
     finally:
         if work.exists():
@@ -429,6 +436,9 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     elif root != tree.root:
         tree = reroot(tree, root)
     joints = estimate_joints(matches.points_a, matches.points_b, seg, config.joints, tree=tree)
+    # Evidence per joint (Joint.confidence); raises WeakEvidenceError rather than a wrong axis.
+    confidence = assess_joints(matches.points_a, matches.points_b, seg, joints, config.joints,
+                               config.confidence, seed)
     timings["segment_joints"] = time.perf_counter() - t
     np.savez(work / "matches.npz", points_a=matches.points_a, points_b=matches.points_b,
              point3D_ids_a=matches.point3D_ids_a, point3D_ids_b=matches.point3D_ids_b,
@@ -468,6 +478,7 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
             "background_matches": len(background),
             "root_from": "background" if root is not None else "largest link",
             "link_matches": seg.sizes.tolist(),
+            "confidence": confidence,
             "dense_unassigned": {"a": int((lab_a < 0).sum()), "b": int((lab_b < 0).sum())},
             "config": _jsonable(asdict(config)),
             "timings": timings,

@@ -44,6 +44,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from artrecon.confidence import rescale_confidence
 from artrecon.errors import DegenerateError, InputError, ReconstructionError
 from artrecon.model import ArticulatedModel
 from artrecon.procrustes import Similarity, rotation_angle, similarity_transform
@@ -672,6 +673,7 @@ def apply_registration(model: ArticulatedModel, T_robot_model: Similarity) -> Ar
             j.state_a *= s
             j.state_b *= s
         j.residual *= s
+        j.confidence = rescale_confidence(j.confidence, s)  # its lengths to metres
         j.relative_transform = T @ j.relative_transform @ T_inv
     frames = {}
     for name, M in model.frames.items():
