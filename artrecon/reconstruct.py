@@ -40,11 +40,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from artrecon import __version__
+from artrecon.assign import AssignConfig, assign_dense_to_links, views_from_sfm
 from artrecon.confidence import ConfidenceConfig, assess_joints
-from artrecon.dense import DenseConfig, DensePoints, RegionConfig, dense_points, object_region
+from artrecon.dense import DenseConfig, RegionConfig, dense_points, object_region
 from artrecon.errors import InputError, ReconstructionError
 from artrecon.features import MatchConfig, match_configurations
 from artrecon.io import (
@@ -64,11 +64,6 @@ from artrecon.sfm import SfMConfig, SfMResult, layout_error, run_sfm
 
 log = logging.getLogger(__name__)
 
-#: A dense point joins link k when link k's A->B transform puts it within this many times the
-#: link's match residual (or this many dense point spacings, whichever is larger) of the other
-#: configuration's dense surface.
-ASSIGN_RESIDUAL_FACTOR = 3.0
-ASSIGN_SPACING_FACTOR = 2.0
 #: Two links whose relative motion moves the second one's matches by less than this fraction
 #: of the scene size, with a relative rotation under MERGE_MAX_ROTATION, are one rigid body
 #: split by sequential RANSAC (seen: a 0.46 mm "drawer" of 96 matches beside a 10 cm pull). A
@@ -96,6 +91,7 @@ class ReconstructConfig:
     match: MatchConfig = field(default_factory=MatchConfig)
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
     joints: JointConfig = field(default_factory=JointConfig)
+    assign: AssignConfig = field(default_factory=AssignConfig)
     confidence: ConfidenceConfig = field(default_factory=ConfidenceConfig)
 
 
@@ -244,45 +240,6 @@ def reroot(tree: KinematicTree, root: int) -> KinematicTree:
     return KinematicTree(root=root, parents=parents, edges=edges, gaps=tree.gaps)
 
 
-def assign_dense_to_links(dense_a: DensePoints, dense_b: DensePoints, points_a: np.ndarray,
-                          points_b: np.ndarray, segmentation) -> tuple[np.ndarray, np.ndarray]:
-    """Link label of every dense point of A and of B (-1: none).
-
-    A point of A joins the link whose A->B transform carries it onto B's dense surface; when
-    several do (near a joint) or none does (its counterpart hidden in B), the label of the nearest
-    segmented match decides. Symmetrically for B with the inverse transforms.
-
-    Returns
-    -------
-    labels_a : (len(dense_a),) int
-    labels_b : (len(dense_b),) int
-    """
-    labels = np.asarray(segmentation.labels)
-    good = labels >= 0
-    out = []
-    for src, dst, m_src, forward in ((dense_a, dense_b, points_a, True),
-                                     (dense_b, dense_a, points_b, False)):
-        tree_dst = cKDTree(dst.points)
-        spacing = float(np.median(tree_dst.query(dst.points, k=2)[0][:, 1]))
-        dists = []
-        for k, T in enumerate(segmentation.transforms):
-            T = T if forward else T.inverse()
-            res = float(segmentation.rms[k]) if k < len(segmentation.rms) else 0.0
-            if not forward:
-                res /= segmentation.scale
-            thr = max(ASSIGN_RESIDUAL_FACTOR * res, ASSIGN_SPACING_FACTOR * spacing)
-            d = tree_dst.query(T.apply(src.points))[0]
-            dists.append(np.where(d < thr, d, np.inf))
-        dists = np.array(dists)  # (links, n)
-        nearest = labels[good][cKDTree(m_src[good]).query(src.points)[1]]
-        fits = np.isfinite(dists)
-        n_fit = fits.sum(0)
-        lab = np.where(n_fit == 1, dists.argmin(0), nearest)
-        lab = np.where((n_fit > 1) & ~fits[nearest, np.arange(len(nearest))], dists.argmin(0), lab)
-        out.append(lab.astype(int))
-    return out[0], out[1]
-
-
 def _resolve_inputs(images, intrinsics, poses_arg, which: str):
     iset = load_image_folder(images)
     intr = None
@@ -379,7 +336,7 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
          work: Path, seed: int, config: ReconstructConfig, progress: bool) -> ArticulatedModel:
     timings: dict[str, float] = {}
     console = sys.stderr if progress else None
-    sfms, denses, regions, backgrounds = {}, {}, {}, {}
+    sfms, denses, regions, backgrounds, occluders = {}, {}, {}, {}, {}
     for key, iset, intr, poses in (("a", set_a, intr_a, poses_a), ("b", set_b, intr_b, poses_b)):
         t = time.perf_counter()
         sfm = run_sfm(iset, work / key, intr, poses, config.sfm, seed, progress)
@@ -399,6 +356,7 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
         t = time.perf_counter()
         dense = dense_points(sfm, config.dense, console)
         centres, axes = _cameras(sfm)
+        occluders[key] = dense.points  # background too: the table and walls hide things
         dense = dense.subset(object_region(dense.points, centres, axes, config.region, seed))
         if len(dense) < 10:
             raise ReconstructionError(f"configuration {key.upper()}: no dense points left on the "
@@ -445,8 +403,10 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
              votes=matches.votes, labels=seg.labels, background_a=background.points_a,
              background_b=background.points_b)
     t = time.perf_counter()
-    lab_a, lab_b = assign_dense_to_links(denses["a"], denses["b"], matches.points_a,
-                                         matches.points_b, seg)
+    lab_a, lab_b = assign_dense_to_links(
+        denses["a"], denses["b"], matches.points_a, matches.points_b, seg,
+        views_a=views_from_sfm(sfms["a"]), views_b=views_from_sfm(sfms["b"]),
+        occluders_a=occluders["a"], occluders_b=occluders["b"], config=config.assign, seed=seed)
     links = []
     (work / "links").mkdir(exist_ok=True)
     for k, T in enumerate(seg.transforms):

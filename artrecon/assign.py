@@ -1,0 +1,325 @@
+"""Which link each dense point belongs to: occlusion- and photo-consistent labelling.
+
+The segmentation (:mod:`artrecon.segment`) labels only the matched SIFT points. Every dense point
+of configuration A (and of B) must then join one link. For a point ``p`` of A, the hypothesis
+"``p`` is on link k" predicts where ``p`` is in B: ``q = T_k(p)``. Four cues weigh each hypothesis:
+
+1. **Geometric fit.** ``q`` lies on B's dense surface (within a few residuals or point spacings).
+   Fails to decide where a link slides within its own surface (a drawer's floor and sides along
+   the pull; flat pliers turning in their plane) or near the joint, where all links move alike,
+   and where ``q`` is hidden in B.
+2. **Free space (occlusion reasoning).** If a camera of B would see ``q`` *in front of* the
+   surface B observed along that ray, nothing was there: the hypothesis is violated. This is what
+   decides points whose counterpart is hidden: the inside of a drawer pulled out in B cannot stay
+   where the drawer was in A (B's cameras see through that place) but can hide inside the cabinet.
+   The surfaces are z-buffers of the dense points, background included, in each camera.
+3. **Photo-consistency.** A small patch on ``p``'s tangent plane, seen in the A image that sees it
+   best, must look like the same patch moved by ``T_k`` in the B image that sees ``q`` best
+   (normalised cross-correlation, plane-induced sampling). This decides sliding surfaces, which
+   the geometry cannot.
+4. **Nearest match.** A weak prior for the link of the nearest segmented SIFT match.
+
+Labels are smooth on the surface: the costs are the unary terms of a Potts model on the
+k-nearest-neighbour graph of the points, minimised by iterated conditional modes from the best
+unary label. Symmetrically for the points of B with the inverse transforms.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.ndimage import map_coordinates, minimum_filter
+from scipy.sparse import coo_matrix
+from scipy.spatial import cKDTree
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class AssignConfig:
+    """Settings of the dense-point labelling. Costs are in units of one failed cue."""
+
+    residual_factor: float = 3.0
+    """A hypothesis fits when ``q`` is within this many times the link's match residual of the
+    other configuration's dense surface ..."""
+    spacing_factor: float = 2.0
+    """... or within this many dense point spacings, whichever is larger."""
+    zbuffer_cell: int = 4
+    """Z-buffer cell edge in pixels (the dense points are ~2-3 px apart in the images)."""
+    depth_tolerance: float = 0.01
+    """Relative depth band (1%, the dense stage's own consistency tolerance) within which ``q``
+    counts as on the observed surface; the band is at least ``spacing_factor`` spacings."""
+    violations_saturate: int = 3
+    """Free-space violations (cameras) at which the violation cost is full."""
+    cost_no_fit: float = 1.0
+    cost_violation: float = 1.0
+    cost_photo: float = 1.0
+    """Times ``(1 - NCC) / 2``; only where every hypothesis has a patch in both configurations."""
+    cost_match: float = 0.3
+    """Cost of disagreeing with the nearest segmented match's link."""
+    smoothness: float = 0.5
+    """Potts weight per neighbour with another label."""
+    neighbours: int = 8
+    neighbour_radius: float = 2.5
+    """Graph edges only up to this many median point spacings."""
+    iterations: int = 15
+    patch_half: int = 3
+    """Patch of (2 h + 1)^2 samples ..."""
+    patch_step_px: float = 1.5
+    """... this many pixels apart in the source image."""
+
+
+@dataclass
+class CameraView:
+    """One posed image: ``K`` (3, 3) OpenCV, ``T_cw`` (4, 4) camera from world, grey image."""
+
+    K: np.ndarray
+    T_cw: np.ndarray
+    image: np.ndarray
+
+    @property
+    def centre(self) -> np.ndarray:
+        return -self.T_cw[:3, :3].T @ self.T_cw[:3, 3]
+
+    def project(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pixel coordinates ``u, v`` and depth ``z`` of points (n, 3)."""
+        Xc = X @ self.T_cw[:3, :3].T + self.T_cw[:3, 3]
+        z = Xc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = self.K[0, 0] * Xc[:, 0] / z + self.K[0, 2]
+            v = self.K[1, 1] * Xc[:, 1] / z + self.K[1, 2]
+        return u, v, z
+
+
+def views_from_sfm(sfm) -> list[CameraView]:
+    """The registered images of an :class:`artrecon.sfm.SfMResult`, grey, full resolution."""
+    poses = sfm.T_world_camera()
+    views = []
+    for name in sorted(poses):
+        img = cv2.imread(str(sfm.image_dir / name), cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            log.warning("assign: cannot read %s; it gives no evidence", name)
+            continue
+        views.append(CameraView(sfm.intrinsics(name), np.linalg.inv(poses[name]),
+                                img.astype(np.float32)))
+    return views
+
+
+class _Surface:
+    """The dense surface of one configuration as seen by its cameras (z-buffer per view)."""
+
+    def __init__(self, views: list[CameraView], points: np.ndarray, cell: int):
+        self.views, self.cell = views, cell
+        self.zbuf = []
+        for v in views:
+            h, w = v.image.shape[0] // cell, v.image.shape[1] // cell
+            u, vv, z = v.project(points)
+            i, j, ok = self._cells(u, vv, z, w, h)
+            zb = np.full((h, w), np.inf)
+            np.minimum.at(zb, (j[ok], i[ok]), z[ok])
+            # close one-cell holes between points (never pushes a surface back)
+            self.zbuf.append(np.where(np.isfinite(zb), zb, minimum_filter(zb, 3)))
+
+    def _cells(self, u, v, z, w, h):
+        with np.errstate(invalid="ignore"):
+            i = np.floor(u / self.cell)
+            j = np.floor(v / self.cell)
+        ok = (z > 0) & (i >= 0) & (i < w) & (j >= 0) & (j < h)
+        return np.where(ok, i, 0).astype(np.int64), np.where(ok, j, 0).astype(np.int64), ok
+
+    def status(self, X: np.ndarray, rel: float, floor: float):
+        """Per view and point: visible (on the observed surface) and violating (in front of it).
+
+        Returns (visible, violating), both (views, n) bool.
+        """
+        vis = np.zeros((len(self.views), len(X)), bool)
+        bad = np.zeros_like(vis)
+        for c, (v, zb) in enumerate(zip(self.views, self.zbuf, strict=True)):
+            u, vv, z = v.project(X)
+            i, j, ok = self._cells(u, vv, z, zb.shape[1], zb.shape[0])
+            zz = np.where(ok, zb[j, i], np.inf)
+            known = ok & np.isfinite(zz)
+            tol = np.maximum(rel * np.where(known, zz, 0.0), floor)
+            vis[c] = known & (np.abs(z - zz) <= tol)
+            bad[c] = known & (z < zz - tol)
+        return vis, bad
+
+    def best_view(self, visible: np.ndarray, X: np.ndarray, N: np.ndarray) -> np.ndarray:
+        """Index of the view that sees each point most head-on (-1: none sees it)."""
+        best = np.full(len(X), -1)
+        score = np.full(len(X), -np.inf)
+        for c, v in enumerate(self.views):
+            d = v.centre - X
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+            s = np.abs(np.sum(d * N, axis=1))
+            m = visible[c] & (s > score)
+            best[m], score[m] = c, s[m]
+        return best
+
+    def sample(self, best: np.ndarray, G: np.ndarray) -> np.ndarray:
+        """Intensities (n, s) of patch points G (n, s, 3) in each point's view (nan: none)."""
+        out = np.full(G.shape[:2], np.nan, np.float32)
+        for c in np.unique(best[best >= 0]):
+            m = best == c
+            u, v, _ = self.views[c].project(G[m].reshape(-1, 3))
+            out[m] = map_coordinates(self.views[c].image, [v, u], order=1,
+                                     mode="nearest").reshape(int(m.sum()), -1)
+        return out
+
+
+def _patch_grid(X, N, step, half):
+    """Points (n, (2 half + 1)^2, 3) on each point's tangent plane, ``step`` (n,) apart."""
+    t1 = np.cross(N, [0.0, 0.0, 1.0])
+    flat = np.linalg.norm(t1, axis=1) < 1e-3
+    t1[flat] = np.cross(N[flat], [1.0, 0.0, 0.0])
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(N, t1)
+    g = np.arange(-half, half + 1, dtype=float)
+    gi, gj = (a.ravel() for a in np.meshgrid(g, g))
+    offs = gi[None, :, None] * t1[:, None, :] + gj[None, :, None] * t2[:, None, :]
+    return X[:, None, :] + step[:, None, None] * offs
+
+
+def _ncc(a, b):
+    a = a - a.mean(1, keepdims=True)
+    b = b - b.mean(1, keepdims=True)
+    return np.sum(a * b, 1) / (np.sqrt(np.sum(a * a, 1) * np.sum(b * b, 1)) + 1e-6)
+
+
+def _graph(X, k, radius):
+    d, i = cKDTree(X).query(X, k=k + 1)
+    spacing = float(np.median(d[:, 1]))
+    keep = (d[:, 1:] < radius * spacing).ravel()
+    rows = np.repeat(np.arange(len(X)), k)[keep]
+    cols = i[:, 1:].ravel()[keep]
+    G = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(X), len(X))).tocsr()
+    return ((G + G.T) > 0).astype(np.float64)
+
+
+def _potts_icm(U, G, weight, iterations, rng):
+    """Labels minimising sum U[l_i, i] + weight * #(neighbours with another label), by
+    iterated conditional modes (half the points updated per sweep, so it cannot oscillate)."""
+    lab = U.argmin(0)
+    if weight <= 0 or G.nnz == 0:
+        return lab
+    K = U.shape[0]
+    for _ in range(iterations):
+        same = np.stack([G @ (lab == k).astype(np.float64) for k in range(K)])
+        new = (U - weight * same).argmin(0)
+        update = rng.random(len(lab)) < 0.5
+        changed = update & (new != lab)
+        lab = np.where(update, new, lab)
+        if not changed.any():
+            break
+    return lab
+
+
+def label_points(src, src_normals, dst, transforms, residuals, match_src, match_labels, *,
+                 surface_src: _Surface | None = None, surface_dst: _Surface | None = None,
+                 config: AssignConfig = AssignConfig(), seed: int = 0) -> np.ndarray:
+    """Link label of every point of one configuration.
+
+    Parameters
+    ----------
+    src, src_normals : (n, 3) dense points (and unit normals) to label.
+    dst : (m, 3) the other configuration's dense points.
+    transforms : list of transforms (``apply``, ``rotation``) from src's frame to dst's, per link.
+    residuals : per link, the match residual in dst's units.
+    match_src, match_labels : segmented matches in src's frame and their links (-1: outlier).
+    surface_src, surface_dst : cameras and z-buffers of the two configurations; without them only
+        the geometric fit, the match prior and the smoothness decide.
+
+    Returns
+    -------
+    (n,) int, a link per point.
+    """
+    K, n = len(transforms), len(src)
+    good = match_labels >= 0
+    nearest = match_labels[good][cKDTree(match_src[good]).query(src)[1]]
+    if K == 1:
+        return np.zeros(n, int)
+    tree = cKDTree(dst)
+    spacing = float(np.median(tree.query(dst, k=2)[0][:, 1]))
+    floor = config.spacing_factor * spacing
+    fits = np.zeros((K, n), bool)
+    violations = np.zeros((K, n))
+    ncc = np.full((K, n), np.nan)
+    photo = surface_src is not None and surface_dst is not None
+    if photo:
+        vis_src, _ = surface_src.status(src, config.depth_tolerance, floor)
+        best_src = surface_src.best_view(vis_src, src, src_normals)
+        depth = np.full(n, np.nan)
+        for c in np.unique(best_src[best_src >= 0]):
+            m = best_src == c
+            depth[m] = surface_src.views[c].project(src[m])[2]
+        step = config.patch_step_px * depth / np.array(
+            [surface_src.views[max(c, 0)].K[0, 0] for c in best_src])
+        G = _patch_grid(src, src_normals, np.nan_to_num(step), config.patch_half)
+        patch_src = surface_src.sample(best_src, G)
+    for k, T in enumerate(transforms):
+        q = T.apply(src)
+        thr = max(config.residual_factor * float(residuals[k]), floor)
+        fits[k] = tree.query(q)[0] < thr
+        if photo:
+            vis, bad = surface_dst.status(q, config.depth_tolerance, floor)
+            violations[k] = bad.sum(0)
+            best = surface_dst.best_view(vis, q, src_normals @ T.rotation.T)
+            patch = surface_dst.sample(best, T.apply(G.reshape(-1, 3)).reshape(G.shape))
+            ok = (best_src >= 0) & (best >= 0)
+            ncc[k, ok] = _ncc(patch_src[ok], patch[ok])
+    U = config.cost_no_fit * (~fits & fits.any(0))
+    U = U + config.cost_violation * np.minimum(violations, config.violations_saturate) \
+        / config.violations_saturate
+    all_photo = np.isfinite(ncc).all(0)
+    U = U + np.where(all_photo, config.cost_photo * (1.0 - np.nan_to_num(ncc)) / 2.0, 0.0)
+    U = U + config.cost_match * (np.arange(K)[:, None] != nearest[None, :])
+    labels = _potts_icm(U, _graph(src, config.neighbours, config.neighbour_radius),
+                        config.smoothness, config.iterations, np.random.default_rng(seed))
+    log.debug("assign: %d points, fit by one link %.0f%%, several %.0f%%, none %.0f%%; "
+              "patches compared %.0f%%", n, 100 * np.mean(fits.sum(0) == 1),
+              100 * np.mean(fits.sum(0) > 1), 100 * np.mean(fits.sum(0) == 0),
+              100 * np.mean(all_photo))
+    return labels
+
+
+def assign_dense_to_links(dense_a, dense_b, points_a, points_b, segmentation, *,
+                          views_a: list[CameraView] | None = None,
+                          views_b: list[CameraView] | None = None,
+                          occluders_a: np.ndarray | None = None,
+                          occluders_b: np.ndarray | None = None,
+                          config: AssignConfig = AssignConfig(), seed: int = 0):
+    """Link label of every dense point of A and of B.
+
+    ``dense_a``/``dense_b`` are :class:`artrecon.dense.DensePoints`; ``points_a``/``points_b``
+    the segmented matches (``segmentation.labels``). With the posed images of both
+    configurations (``views_a``, ``views_b``), free-space and photo-consistency cues join the
+    geometric fit; ``occluders_*`` are the points the z-buffers are built from (default: the
+    dense points; pass the dense points before the background was removed, so that the table
+    and walls occlude too).
+
+    Returns
+    -------
+    labels_a : (len(dense_a),) int
+    labels_b : (len(dense_b),) int
+    """
+    labels = np.asarray(segmentation.labels)
+    Ts = list(segmentation.transforms)
+    inv = [T.inverse() for T in Ts]
+    rms = np.zeros(len(Ts))
+    rms[:len(segmentation.rms)] = np.asarray(segmentation.rms, float)[:len(Ts)]
+    surf_a = surf_b = None
+    if views_a and views_b:
+        occ_a = dense_a.points if occluders_a is None else occluders_a
+        occ_b = dense_b.points if occluders_b is None else occluders_b
+        surf_a = _Surface(views_a, occ_a, config.zbuffer_cell)
+        surf_b = _Surface(views_b, occ_b, config.zbuffer_cell)
+    lab_a = label_points(dense_a.points, dense_a.normals, dense_b.points, Ts, rms, points_a,
+                         labels, surface_src=surf_a, surface_dst=surf_b, config=config,
+                         seed=seed)
+    lab_b = label_points(dense_b.points, dense_b.normals, dense_a.points, inv,
+                         rms / segmentation.scale, points_b, labels, surface_src=surf_b,
+                         surface_dst=surf_a, config=config, seed=seed)
+    return lab_a, lab_b
