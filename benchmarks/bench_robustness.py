@@ -10,8 +10,8 @@ writes into ``OUT``:
 - ``<perturbation>.png``: axis angle error and state error against the strength, with the gate;
   a run that failed or refused is a red cross at the top of the chart;
 - ``robustness.md`` / ``robustness.json``: the table of every run and, per perturbation, where
-  the method breaks: the first strength at which a joint gate fails, the scene's segmentation
-  gate fails, or the run refuses or fails.
+  the method breaks: the first strength at which a joint gate fails (axis angle, axis position,
+  state) or the run refuses or fails. The segmentation accuracy is in the table beside it.
 
 A full sweep takes hours on two shared cores; ``--reduced`` (2-3 strengths each) fits in well
 under one. Runs that already have ``results.json`` in ``OUT`` are not redone (``--redo``).
@@ -110,9 +110,12 @@ def summarise(res: dict, gates: dict) -> dict:
                    estimated=j.get("estimated_joint") is not None)
     cpe = res.get("camera_pose_error") or {}
     row["camera_position_error_mm"] = cpe.get("position_median_mm")
-    seg_ok = (row["segmentation_accuracy"] is not None
-              and row["segmentation_accuracy"] >= gates["segmentation_accuracy"])
-    row["passes"] = bool(not row["error"] and row["joint_passes"] and seg_ok)
+    row["segmentation_passes"] = (row["segmentation_accuracy"] is not None
+                                  and row["segmentation_accuracy"]
+                                  >= gates["segmentation_accuracy"])
+    # breaking = a joint gate fails or the run fails/refuses; the segmentation gate is reported
+    # beside it (pliers at 18 views misses it unperturbed, so it cannot show a break)
+    row["passes"] = bool(not row["error"] and row["joint_passes"])
     row["refused"] = bool(row["error"] and ("Weak" in row["error"] or "refus" in row["error"]))
     return row
 
@@ -200,7 +203,8 @@ def write_report(out: Path, args, table: dict, gates: dict) -> None:
              "manipulation (run folders under `runs/`). Gates: axis angle "
              f"{gates['axis_angle_deg']} deg, axis position {gates['axis_position_mm']} mm, "
              f"state {gates['state_error_deg']} deg / {gates['state_error_mm']} mm, segmentation "
-             f"{gates['segmentation_accuracy']}. Errors are of the scene's first moving joint.",
+             f"{gates['segmentation_accuracy']} (reported, not used for 'breaks'). Errors are of "
+             "the scene's first moving joint.",
              "", "## Where the method breaks", "",
              "| perturbation | strengths run | breaks at | how |", "| --- | --- | --- | --- |"]
     for title, unit, xs, rows in table.values():
@@ -243,6 +247,9 @@ def main(argv=None) -> int:
     p.add_argument("--views", type=int, default=18, help="views per ring of every run (18)")
     p.add_argument("--out", type=Path, default=ROOT / "runs" / "robustness")
     p.add_argument("--reduced", action="store_true", help="2-3 strengths per perturbation")
+    p.add_argument("--strongest", action="store_true",
+                   help="only the strongest reduced strength of each perturbation (a first pass; "
+                        "a later --reduced run reuses it)")
     p.add_argument("--only", nargs="*", choices=sorted(SWEEPS), help="these perturbations")
     p.add_argument("--use-poses", action="store_true", help="reconstruct from FK camera poses")
     p.add_argument("--redo", action="store_true", help="rerun runs that have results")
@@ -257,7 +264,7 @@ def main(argv=None) -> int:
     table = {}
     for name in names:
         title, unit, full, reduced, opts = SWEEPS[name]
-        strengths = reduced if args.reduced else full
+        strengths = [reduced[-1]] if args.strongest else reduced if args.reduced else full
         xs = [args.views] if name == "views" else [0]
         rows = [base]
         for s in strengths:

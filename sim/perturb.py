@@ -405,10 +405,13 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0) ->
 
     Reads ``model_dir``'s ``matches.npz`` and dense points, corrupts the object matches
     (:func:`corrupt_matches`), runs the same steps as :func:`artrecon.reconstruct.reconstruct`
-    after matching (segment_links, merge, tree, root from the background, estimate_joints, dense
-    points to links) and writes ``out_dir/model.json`` and ``out_dir/matches.npz``;
-    ``out_dir/a`` and ``out_dir/b`` link to the SfM models. Raises what those steps raise.
+    after matching (segment_links, merge, tree, root from the background, estimate_joints, the
+    per-joint confidence check that refuses weak joints, dense points to links -- geometrically:
+    the image cues of the pipeline's assignment need its SfM images) and writes
+    ``out_dir/model.json`` and ``out_dir/matches.npz``; ``out_dir/a`` and ``out_dir/b`` link to
+    the SfM models. Raises what those steps raise (a refusal included).
     """
+    from artrecon.confidence import assess_joints
     from artrecon.dense import DensePoints
     from artrecon.joints import build_kinematic_tree, estimate_joints
     from artrecon.model import ArticulatedModel, Link
@@ -433,6 +436,8 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0) ->
     if root is not None and root != tree.root:
         tree = reroot(tree, root)
     joints = estimate_joints(pa, pb, seg, config.joints, tree=tree)
+    # the pipeline's own evidence check: weak joints are refused (WeakEvidenceError)
+    confidence = assess_joints(pa, pb, seg, joints, config.joints, config.confidence, seed)
     dense = {}
     for c in ("a", "b"):
         pts, nrm, col = read_ply(model_dir / c / "dense.ply")
@@ -459,7 +464,7 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0) ->
         metadata={**old.metadata, "match_outliers": int((seg.labels < 0).sum()),
                   "link_matches": seg.sizes.tolist(),
                   "root_from": "background" if root is not None else "largest link",
-                  "perturbation": summary})
+                  "confidence": confidence, "perturbation": summary})
     out_dir.mkdir(parents=True, exist_ok=True)
     model.save(out_dir / "model.json")
     np.savez(out_dir / "matches.npz", points_a=pa, points_b=pb, wrong=wrong, labels=seg.labels,
