@@ -81,8 +81,11 @@ OCCLUSION_TOLERANCE = 0.003
 FACE_GRID = 3
 FACE_INSET = 0.6
 #: Revolute joints: candidate points nearer the axis than this are not used (a short lever turns
-#: the gripper a lot for little motion and needs large forces).
+#: the gripper a lot for little motion and needs large forces) ...
 MIN_LEVER = 0.06
+#: ... unless the link reaches no farther than MIN_LEVER from its axis (a Barrett finger turning
+#: about its own spread axis reaches 4.7 cm): then points beyond this fraction of its reach.
+MIN_LEVER_FRACTION = 0.6
 #: Candidates whose normal points down more steeply than this (z component) are not approached
 #: (from below the object, i.e. through the table).
 MIN_NORMAL_Z = -0.3
@@ -544,8 +547,10 @@ def _rank(cands: list[GraspCandidate], est: JointEstimate, prefer_hidden: bool):
         v = c.point - est.point
         return float(np.linalg.norm(v - np.dot(v, est.axis) * est.axis))
 
+    reach = max((lever(c) for c in cands), default=0.0)
+    min_lever = min(MIN_LEVER, MIN_LEVER_FRACTION * reach)
     usable = [c for c in cands if c.normal[2] >= MIN_NORMAL_Z
-              and (est.type != "revolute" or lever(c) >= MIN_LEVER)]
+              and (est.type != "revolute" or lever(c) >= min_lever)]
 
     def key(c):
         hidden_rank = 0 if (c.hidden == prefer_hidden) else 1

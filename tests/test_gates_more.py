@@ -146,3 +146,46 @@ def test_cabinet_hinge_and_slide_pair_by_links():
     assert rows["door_hinge"]["estimated_joint"] == "e_door" and rows["door_hinge"]["passes"]
     assert rows["drawer_slide"]["estimated_joint"] == "e_slide"
     assert rows["drawer_slide"]["passes"] and rows["drawer_slide"]["axis_position_mm"] is None
+
+
+# ------------------------------------------------------------------------------ fast: the arm
+
+
+def test_manipulation_welds_to_the_scenes_own_arm():
+    """pliers_panda: the grasp welds join the Panda's flange (not the PUMA's, which the scene
+    does not have) and visibility is judged through the Panda's wrist camera."""
+    from sim import manipulate
+
+    scene = load_scene("pliers_panda")
+    world = manipulate.build_world(scene)
+    assert world.kin.spec.name == "panda"
+    assert world.model.body(world.flange_body).name == "panda_link7"
+    data = manipulate._fresh_data(world)
+    cands = manipulate.scene_grasp_candidates(world, data, "pliers_moving")
+    out = manipulate.classify_visibility(world, data, data.qpos[world.qidx].copy(), cands)
+    assert len(out) == len(cands) > 0
+
+
+def test_short_links_still_have_grasp_candidates():
+    """A Barrett finger reaches 4.7 cm from its spread axis, under MIN_LEVER (6 cm): its outer
+    points are used; on a link that reaches farther the MIN_LEVER rule stands."""
+    from sim import manipulate
+
+    scene = load_scene("barrett_hand")
+    world = manipulate.build_world(scene)
+    data = manipulate._fresh_data(world)
+    j = scene.joint("finger1_spread")
+    est = manipulate.JointEstimate(j.type, j.axis, j.point, "ground truth", j.name)
+    cands = manipulate.scene_grasp_candidates(world, data, "finger1")
+
+    def lever(c):
+        v = c.point - j.point
+        return float(np.linalg.norm(v - (v @ j.axis) * j.axis))
+
+    reach = max(lever(c) for c in cands)
+    assert reach < manipulate.MIN_LEVER
+    ranked = manipulate._rank(cands, est, prefer_hidden=True)
+    assert ranked and all(lever(c) >= manipulate.MIN_LEVER_FRACTION * reach for c in ranked)
+    far = [manipulate.GraspCandidate(j.point + [0.08, 0.0, 0.0], np.array([1.0, 0, 0]))]
+    ranked = manipulate._rank(cands + far, est, prefer_hidden=True)
+    assert [c.point.tolist() for c in ranked] == [far[0].point.tolist()]
