@@ -48,6 +48,7 @@ log = logging.getLogger(__name__)
 __all__ = [
     "ConfidenceConfig",
     "assess_joints",
+    "explain_segmentation_failure",
     "joint_confidence",
     "registration_agreement",
     "rescale_confidence",
@@ -98,6 +99,11 @@ SCORE_AXIS_DEG = 2.0
 #: ... and (revolute) whose axis line passes within this fraction of the child's extent of the
 #: estimate's axis point (the evaluation's 5 mm on objects of 20-30 cm).
 SCORE_POINT_RELATIVE = 0.02
+#: When segmentation finds fewer than two links, and fewer than this share of the object's matches
+#: agree on any one rigid motion, the matches are chance pairings: the two image sets show
+#: different objects (or the matching failed), not one object that moved rigidly. Real captures
+#: put most matches in links (bundled scenes: 83-91%); two different objects in one room: 7%.
+MIN_CONSISTENT_SHARE = 0.5
 #: Two registrations that put the model's points further apart than this (mm, RMS), or rotate it
 #: by more than this (deg), disagree: one of them is wrong by more than a grasp tolerates.
 REGISTRATION_MAX_MM = 10.0
@@ -380,6 +386,38 @@ def rescale_confidence(record: dict, scale: float, unit: str = "m") -> dict:
                 out[name][key] = out[name][key] * scale
     out["length_unit"] = unit
     return out
+
+
+def explain_segmentation_failure(exc: Exception, points_a, points_b, seg_config,
+                                 seed: int = 0) -> Exception:
+    """The error to raise when segment_links found fewer than two links.
+
+    ``exc`` (SingleBodyError, DegenerateError) says the object moved as one body or the matches
+    are bad; when fewer than ``MIN_CONSISTENT_SHARE`` of the matches move together under any rigid
+    motion, the likelier cause is two image sets of different objects: a ReconstructionError
+    saying so, with the figure. Otherwise ``exc`` itself.
+    """
+    from dataclasses import replace
+
+    from artrecon.errors import NoMotionError, ReconstructionError
+    from artrecon.segment import segment_links
+
+    if isinstance(exc, NoMotionError):
+        return exc
+    n = len(points_a)
+    try:
+        seg = segment_links(points_a, points_b, replace(seg_config, min_links=1), seed=seed)
+        share = float(seg.sizes.max() / n) if seg.n_links else 0.0
+    except DegenerateError:
+        share = 0.0
+    if share >= MIN_CONSISTENT_SHARE:
+        return exc
+    return ReconstructionError(
+        f"no consistent link between the two image sets: at most {100 * share:.0f}% of the {n} "
+        f"matches on the object move together under one rigid motion (a real object: most of "
+        f"them; need {100 * MIN_CONSISTENT_SHARE:.0f}%), so the matches are chance pairings. Are "
+        "both image sets of the same object, photographed from similar directions? "
+        f"(segmentation: {exc})")
 
 
 # --- registration ---------------------------------------------------------------------------------

@@ -43,9 +43,9 @@ import numpy as np
 
 from artrecon import __version__
 from artrecon.assign import AssignConfig, assign_dense_to_links, views_from_sfm
-from artrecon.confidence import ConfidenceConfig, assess_joints
+from artrecon.confidence import ConfidenceConfig, assess_joints, explain_segmentation_failure
 from artrecon.dense import DenseConfig, RegionConfig, dense_points, object_region
-from artrecon.errors import InputError, ReconstructionError
+from artrecon.errors import DegenerateError, InputError, ReconstructionError
 from artrecon.features import MatchConfig, match_configurations
 from artrecon.io import (
     Intrinsics,
@@ -384,7 +384,11 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     matches = matches.subset(in_a & in_b)
     timings["match"] = time.perf_counter() - t
     t = time.perf_counter()
-    seg = segment_links(matches.points_a, matches.points_b, config.segmentation, seed=seed)
+    try:
+        seg = segment_links(matches.points_a, matches.points_b, config.segmentation, seed=seed)
+    except DegenerateError as exc:  # fewer than two links: one moving body, or other objects?
+        raise explain_segmentation_failure(exc, matches.points_a, matches.points_b,
+                                           config.segmentation, seed) from exc
     seg = merge_equivalent_links(matches.points_a, matches.points_b, seg)
     tree = build_kinematic_tree(matches.points_a, seg, config.joints)
     root = static_link(seg, background.points_a, background.points_b)
