@@ -300,7 +300,9 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
     InputError
         Bad folders, images or camera files.
     ReconstructionError, DegenerateError
-        A stage failed (the message says which and what to try).
+        A stage failed (the message says which and what to try). WeakEvidenceError (a
+        ReconstructionError): a joint's evidence is too weak to give its axis
+        (artrecon.confidence; each joint of a returned model has its ``confidence`` record).
     """
     t_all = time.perf_counter()
     # One value for both sets, or a pair (a (3, 3) nested list has 3 rows, never 2).
@@ -386,11 +388,11 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     t = time.perf_counter()
     try:
         seg = segment_links(matches.points_a, matches.points_b, config.segmentation, seed=seed)
+        seg = merge_equivalent_links(matches.points_a, matches.points_b, seg)
+        tree = build_kinematic_tree(matches.points_a, seg, config.joints)
     except DegenerateError as exc:  # fewer than two links: one moving body, or other objects?
         raise explain_segmentation_failure(exc, matches.points_a, matches.points_b,
                                            config.segmentation, seed) from exc
-    seg = merge_equivalent_links(matches.points_a, matches.points_b, seg)
-    tree = build_kinematic_tree(matches.points_a, seg, config.joints)
     root = static_link(seg, background.points_a, background.points_b)
     if root is None:
         log.warning("the background does not show which link is the base; the largest link "
