@@ -15,7 +15,12 @@ cancels. Then, as in the method:
 
 Links are joined into a tree rooted at the largest link: a minimum spanning tree over the pairs of
 spatially adjacent links (closest points in configuration A within `adjacency_distance` x scene
-size), weighted by their gap plus how far their relative motion is from a single joint.
+size), weighted by their gap, how far their relative motion is from a single joint, and, for a
+revolute motion, how far its axis passes from the two links (a hinge's pin goes through both).
+The last term tells a planar chain apart: in the scraper truck (boom on the chassis, blade on the
+boom, parallel hinges) the blade's motion relative to the chassis is also a clean rotation (by
+the sum of both angles), and the blade hangs as close to the chassis as to the boom; but that
+rotation's axis runs centimetres away from both, while the true hinges touch their links.
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ log = logging.getLogger(__name__)
 __all__ = [
     "JointConfig",
     "KinematicTree",
+    "axis_gap",
     "build_kinematic_tree",
     "estimate_joints",
     "joint_from_motion",
@@ -56,6 +62,9 @@ class JointConfig:
     """Links whose closest points are nearer than this x scene size may share a joint."""
     misfit_weight: float = tol.MISFIT_WEIGHT
     """Weight of the single-joint misfit (relative to scene size) in the tree edge cost."""
+    axis_gap_weight: float = 1.0
+    """Weight of the revolute axis' distance from the farther of the two links (relative to
+    scene size) in the tree edge cost (see `axis_gap`)."""
 
 
 @dataclass
@@ -226,7 +235,9 @@ def build_kinematic_tree(
                                        config.revolute_min_angle)[1]
             m_ji = single_joint_misfit(relative_motion(t[j], t[i]), pts[i],
                                        config.revolute_min_angle)[1]
-            w = gaps[i, j] / size + config.misfit_weight * min(m_ij, m_ji) / size
+            w = (gaps[i, j] + config.misfit_weight * min(m_ij, m_ji)
+                 + config.axis_gap_weight * axis_gap(relative_motion(t[i], t[j]), pts[i], pts[j],
+                                                     config.revolute_min_angle)) / size
             cost[i, j] = cost[j, i] = w + 1e-12  # csgraph treats 0 as "no edge"
     n_comp, comp = connected_components(cost, directed=False)
     if n_comp > 1:
@@ -247,6 +258,43 @@ def build_kinematic_tree(
     parents[root] = -1
     edges = [(int(parents[c]), int(c)) for c in order if c != root]
     return KinematicTree(root=root, parents=parents, edges=edges, gaps=gaps)
+
+
+def axis_gap(motion: Similarity, points_i: np.ndarray, points_j: np.ndarray,
+             revolute_min_angle: float) -> float:
+    """How far the axis of a revolute relative motion passes from the farther of two links.
+
+    A hinge joins two links through its pin, so its axis passes through (or next to) both. The
+    distance of the axis line to a link is the k-th smallest distance of its points to the line
+    (k = tolerances.ADJACENCY_ROBUST_K, as for the gap between links). 0 for a prismatic motion
+    (its axis position means nothing).
+
+    Parameters
+    ----------
+    motion : Similarity
+        Relative motion of link j to link i (either way round: the same axis line).
+    points_i, points_j : (n, 3) float
+        The two links' points, configuration A.
+    revolute_min_angle : float
+
+    Returns
+    -------
+    float
+        Model units.
+    """
+    u, theta = _axis_angle(motion.rotation)
+    if theta < revolute_min_angle:
+        return 0.0
+    t = motion.translation
+    t_perp = t - (t @ u) * u
+    p = 0.5 * (t_perp + np.cross(u, t_perp) / np.tan(0.5 * theta))
+    out = 0.0
+    for pts in (points_i, points_j):
+        v = pts - p
+        d = np.linalg.norm(v - np.outer(v @ u, u), axis=1)
+        k = min(tol.ADJACENCY_ROBUST_K, len(d)) - 1
+        out = max(out, float(np.partition(d, k)[k]))
+    return out
 
 
 def _robust_gap(tree_j, pts_i, tree_i, pts_j) -> float:

@@ -168,3 +168,49 @@ def test_far_apart_links_are_not_jointed():
     far[child] += [20.0, 0.0, 0.0]
     with pytest.raises(ReconstructionError, match="adjacency_distance"):
         build_kinematic_tree(far, seg)
+
+
+def test_planar_chain_tree_follows_the_hinges_not_the_nearest_link():
+    """A scraper-truck-like planar chain: boom hinged on the chassis, blade hinged on the boom's
+    front, parallel axes, the blade hanging as close to the chassis as to the boom. The blade's
+    motion relative to the chassis is a clean rotation too (60 deg), so neither the gap nor the
+    single-joint misfit tells the tree; its axis runs far from both links, the true hinges'
+    axes touch theirs (joints.axis_gap)."""
+    from artrecon.joints import axis_gap, relative_motion
+    from artrecon.segment import Segmentation
+
+    rng = np.random.default_rng(0)
+
+    def box(lo, hi, n):
+        return rng.uniform(lo, hi, (n, 3))
+
+    def hinge(point, angle):
+        r = Rotation.from_rotvec([0.0, -angle, 0.0]).as_matrix()
+        return Similarity(r, np.asarray(point) - r @ point, 1.0)
+
+    chassis = box([-0.15, -0.07, 0.0], [0.15, 0.07, 0.09], 400)
+    boom = box([-0.15, -0.02, 0.09], [0.15, 0.02, 0.11], 200)  # hinge at its rear (x -0.15)
+    # the blade hangs in front of the chassis (2 mm off), a bracket up to the pin at the boom's
+    # front (5 mm off the boom's end)
+    blade = np.vstack([box([0.152, -0.08, 0.0], [0.168, 0.08, 0.085], 180),
+                       box([0.155, -0.01, 0.085], [0.165, 0.01, 0.105], 20)])
+    t_boom = hinge([-0.15, 0.0, 0.1], np.deg2rad(30))
+    t_blade = t_boom @ hinge([0.16, 0.0, 0.1], np.deg2rad(30))
+    points = np.vstack([chassis, boom, blade])
+    labels = np.repeat([0, 1, 2], [400, 200, 200])
+    seg = Segmentation(labels=labels, transforms=[Similarity(), t_boom, t_blade], scale=1.0)
+    tree = build_kinematic_tree(points, seg)
+    # the blade is nearer the chassis than the boom is: the gap alone would hang it there
+    assert tree.gaps[0, 2] < tree.gaps[1, 2]
+    assert sorted(tree.edges) == [(0, 1), (1, 2)]
+    # without the axis term the blade hangs on the chassis
+    blind = build_kinematic_tree(points, seg, JointConfig(axis_gap_weight=0.0))
+    assert sorted(blind.edges) == [(0, 1), (0, 2)]
+    wrong = axis_gap(relative_motion(seg.transforms[0], seg.transforms[2]), chassis, blade,
+                     np.deg2rad(4))
+    right = axis_gap(relative_motion(seg.transforms[1], seg.transforms[2]), boom, blade,
+                     np.deg2rad(4))
+    assert right < 0.02 and wrong > 0.05
+    # a slide has no axis position: no axis term
+    slide = Similarity(np.eye(3), [0.1, 0.0, 0.0], 1.0)
+    assert axis_gap(slide, chassis, blade, np.deg2rad(4)) == 0.0
