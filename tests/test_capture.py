@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 import pytest
 from PIL import Image
+from test_gates_more import GATE_SCENES_MORE
 
 from sim import capture as C
 from sim import robot, views
@@ -310,9 +311,10 @@ def test_held_object_stays_and_an_arm_hitting_it_is_seen_at_every_step():
     assert any("truck" in h for h in hits), hits
 
 
-#: The accuracy gates (tests/test_gates.py) capture these scenes in both configurations and check
-#: that every planned view was captured; planning the others here keeps CI from planning twice.
-GATED_SCENES = ("pliers", "truck", "drawer")
+#: The accuracy gates (tests/test_gates.py, tests/test_gates_more.py) capture these scenes in both
+#: configurations and check that every planned view was captured; planning the others here keeps
+#: CI from planning twice.
+GATED_SCENES = ("pliers", "truck", "drawer", *GATE_SCENES_MORE)
 #: Views per ring in CI, as in the gates (a full 36-view plan of one scene takes minutes).
 PLAN_VIEWS = int(os.environ.get("ARTRECON_GATE_VIEWS", "18"))
 

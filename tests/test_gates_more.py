@@ -14,6 +14,8 @@ Two parts:
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -189,3 +191,137 @@ def test_short_links_still_have_grasp_candidates():
     far = [manipulate.GraspCandidate(j.point + [0.08, 0.0, 0.0], np.array([1.0, 0, 0]))]
     ranked = manipulate._rank(cands + far, est, prefer_hidden=True)
     assert [c.point.tolist() for c in ranked] == [far[0].point.tolist()]
+
+
+# ------------------------------------------------------------------------------ slow: gates
+
+#: Views per full capture ring, as in tests/test_gates.py (18: 20 degrees apart).
+GATE_VIEWS = int(os.environ.get("ARTRECON_GATE_VIEWS", "18"))
+
+#: scene -> (EvalConfig settings, why). CI budget: tests/test_gates.py already spends ~7 min on
+#: pliers, truck and drawer with SfM from the images and manipulation; the whole suite must stay
+#: well under 30 min on 2 cores, and each scene here costs 2-3 min with SfM. So:
+#: - scraper_truck, cabinet, barrett_hand: what is new to the method (a chain of two hinges; a
+#:   hinge and a slide in one object; two coupled hinges) runs exactly like the bundled gates:
+#:   SfM from the images alone, registration, manipulation of the first joint.
+#: - cabinet_door_only: the static-joint check (one joint found, none invented). The door is
+#:   cabinet's, already reconstructed from images and manipulated above, so here the cameras
+#:   are the arm's known poses (use_poses: triangulation, no SfM) and no manipulation.
+#: - pliers_panda: the other arm, the full evaluation (capture, reconstruct, register,
+#:   manipulate) with the Panda; the pliers themselves are gated by SfM in test_gates.py, so the
+#:   reconstruction here uses the arm's known poses.
+GATE_SCENES_MORE = {
+    "scraper_truck": ({}, "chain of two hinges"),
+    "cabinet": ({}, "hinge and slide in one object"),
+    "barrett_hand": ({}, "two coupled hinges, a fixed finger"),
+    "cabinet_door_only": ({"use_poses": True, "manipulate": False}, "static drawer"),
+    "pliers_panda": ({"use_poses": True}, "the Panda arm"),
+}
+
+#: scene -> moving joints (the gates are per joint, so a report names the one that missed).
+GATE_JOINTS = {
+    "scraper_truck": ("boom_hinge", "blade_hinge"),
+    "cabinet": ("door_hinge", "drawer_slide"),
+    "barrett_hand": ("finger1_spread", "finger2_spread"),
+    "cabinet_door_only": ("door_hinge",),
+    "pliers_panda": ("pliers_hinge",),
+}
+
+#: Known misses, measured at 18 views per ring, seed 0: {(scene, gate): reason}. Strict: the
+#: day a scene passes, the entry must go. Gates are never loosened here.
+KNOWN_MISSES: dict[tuple[str, str], str] = {
+    ("pliers_panda", "segmentation"): "measured 0.922 < 0.95 (the pliers' own miss, 0.929 in "
+                                      "tests/test_gates.py; the joint passes)",
+}
+
+_RESULTS: dict[str, dict] = {}
+
+
+@pytest.fixture(scope="module")
+def gate_out(tmp_path_factory):
+    return tmp_path_factory.mktemp("gates_more")
+
+
+def _result(name, out):
+    """The scene's evaluation, run once per session (only the scenes a selection needs)."""
+    if name not in _RESULTS:
+        settings, _ = GATE_SCENES_MORE[name]
+        ev = evaluate.EvalConfig(views=GATE_VIEWS, seed=0, progress=False, **settings)
+        _RESULTS[name] = evaluate.evaluate_scene(name, ev, out)
+    r = _RESULTS[name]
+    assert r["error"] is None, f"{name} failed: {r['error']}"
+    return r
+
+
+def _param(scene, gate, *rest):
+    values = (scene, *rest)
+    key = (scene, gate)
+    if key in KNOWN_MISSES:
+        return pytest.param(*values, marks=pytest.mark.xfail(strict=True,
+                                                             reason=KNOWN_MISSES[key]))
+    return pytest.param(*values)
+
+
+_JOINT_CASES = [(s, j) for s in GATE_SCENES_MORE for j in GATE_JOINTS[s]]
+
+
+def _row(r, joint):
+    rows = {row["name"]: row for row in r["joints"]}
+    assert joint in rows, f"{r['scene']}: no row for {joint} (moving joints: {list(rows)})"
+    return rows[joint]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("name", "joint"), [_param(s, "joints", j) for s, j in _JOINT_CASES])
+def test_joint_gates(name, joint, gate_out):
+    """Type, axis angle, axis position (revolute), state: sim.evaluate.GATES."""
+    row = _row(_result(name, gate_out), joint)
+    assert row["estimated_joint"] is not None, f"{name}/{joint}: no estimated joint"
+    assert row["type_correct"], (name, row)
+    assert row["axis_angle_deg"] <= evaluate.GATES["axis_angle_deg"], (name, row)
+    if row["type_true"] == "revolute":
+        assert row["axis_position_mm"] <= evaluate.GATES["axis_position_mm"], (name, row)
+    gate = evaluate.GATES[f"state_error_{row['state_error_unit']}"]
+    assert row["state_error"] is not None and row["state_error"] <= gate, (name, row)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [_param(s, "tree") for s in GATE_SCENES_MORE])
+def test_kinematic_tree_and_no_invented_joint(name, gate_out):
+    """One estimated joint per moving joint, each between the links the true joint joins; a
+    static joint is reported as static and not found."""
+    r = _result(name, gate_out)
+    scene = load_scene(name)
+    assert r["n_estimated_joints"] == len(scene.moving_joints), (name, r["pairs"])
+    assert r["invented_joints"] == [], (name, r["invented_joints"])
+    assert r["tree_correct"], (name, r["pairs"], r["link_correspondence"])
+    assert r["static_joints"] == [j.name for j in scene.joints if j.static]
+    assert all(row["paired_by_links"] for row in r["joints"]), (name, r["joints"])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [_param(s, "segmentation") for s in GATE_SCENES_MORE])
+def test_segmentation_accuracy(name, gate_out):
+    r = _result(name, gate_out)
+    assert r["segmentation"]["model_links"] == len(load_scene(name).moving_joints) + 1
+    assert r["segmentation_accuracy"] >= evaluate.GATES["segmentation_accuracy"], \
+        (name, r["segmentation"])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [_param(s, "capture") for s in GATE_SCENES_MORE])
+def test_every_planned_view_captured(name, gate_out):
+    r = _result(name, gate_out)
+    for cfg in ("capture_a", "capture_b"):
+        cap = r[cfg]
+        assert cap["n_planned"] > 0 and cap["n_captured"] == cap["n_planned"], (name, cfg, cap)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [_param(s, "manipulation") for s, (cfg, _) in
+                                  GATE_SCENES_MORE.items() if cfg.get("manipulate", True)])
+def test_manipulation_achieves_request(name, gate_out):
+    man = _result(name, gate_out)["manipulation"]
+    assert man and man.get("requested") is not None, f"{name}: no manipulation: {man}"
+    rel = abs(man["achieved"] - man["requested"]) / abs(man["requested"])
+    assert rel <= evaluate.GATES["manipulation_relative_error"], (name, man)
