@@ -53,8 +53,8 @@ SWEEPS = {
     "motion": ("smaller joint motion (revolute cap s deg, prismatic cap 2 s mm)", "deg",
                [15, 10, 5, 2], [10, 5],
                lambda s: ["--motion-deg", str(s), "--motion-mm", str(2 * s)]),
-    "outliers": ("wrong cross-configuration matches", "share", [0.3, 0.5, 0.6, 0.7, 0.8],
-                 [0.5, 0.7], lambda s: ["--match-outliers", str(s)]),
+    "outliers": ("wrong cross-configuration matches", "share", [0.3, 0.5, 0.6, 0.7, 0.8, 0.9],
+                 [0.5, 0.7, 0.9], lambda s: ["--match-outliers", str(s)]),
     "texture": ("less textured object (texture contrast 1 - s)", "contrast removed",
                 [0.5, 0.7, 0.9, 0.97], [0.7, 0.9],
                 lambda s: ["--texture-contrast", f"{1 - s:.3f}"]),
@@ -70,10 +70,13 @@ def _run_id(name: str, s) -> str:
 
 
 def run_one(out: Path, run_id: str, scene: str, views: int, extra: list[str], use_poses: bool,
-            redo: bool) -> dict:
-    """One evaluation (subprocess), sharing ``out/cache``; returns its scene result."""
+            redo: bool, report_only: bool = False) -> dict | None:
+    """One evaluation (subprocess), sharing ``out/cache``; returns its scene result (None: not
+    run and ``report_only``)."""
     folder = out / "runs" / run_id
     res_path = folder / "results.json"
+    if report_only and not res_path.is_file():
+        return None
     if redo or not res_path.is_file():
         folder.mkdir(parents=True, exist_ok=True)
         link = folder / "cache"
@@ -105,9 +108,15 @@ def summarise(res: dict, gates: dict) -> dict:
         j = joints[0]
         row.update(axis_angle_deg=j.get("axis_angle_deg"),
                    axis_position_mm=j.get("axis_position_mm"), state_error=j.get("state_error"),
-                   state_unit=j.get("state_error_unit"),
+                   state_unit=j.get("state_error_unit"), state_true=j.get("state_true"),
                    joint_passes=all(bool(x.get("passes")) for x in joints),
                    estimated=j.get("estimated_joint") is not None)
+    ms = res.get("model_summary") or {}
+    row["matches"] = ms.get("matches")
+    row["match_outliers"] = ms.get("match_outliers")
+    if res.get("perturb_matches"):
+        row["matches_made_wrong"] = res["perturb_matches"].get("made_wrong")
+        row["match_outliers"] = res["perturb_matches"].get("outliers_found")
     cpe = res.get("camera_pose_error") or {}
     row["camera_position_error_mm"] = cpe.get("position_median_mm")
     row["segmentation_passes"] = (row["segmentation_accuracy"] is not None
@@ -173,17 +182,19 @@ def plot_panel(img, box, xs, ys, fails, gate, title, xlabel, ylabel):
 
 
 def plot_sweep(path: Path, title: str, unit: str, xs, rows, gates):
-    img = np.full((330, 900, 3), 255, np.uint8)
+    img = np.full((330, 900, 3), 255, np.uint8)  # legend on the last line
     _text(img, title, (10, 20), 0.55, (0, 0, 0), 1)
     fails = [not r["passes"] for r in rows]
     axis = [r["axis_angle_deg"] for r in rows]
     state = [r["state_error"] for r in rows]
     su = next((r["state_unit"] for r in rows if r["state_unit"]), "deg")
-    plot_panel(img, (0, 30, 450, 330), xs, axis, fails, gates["axis_angle_deg"],
+    plot_panel(img, (0, 30, 450, 315), xs, axis, fails, gates["axis_angle_deg"],
                "axis angle error", f"strength ({unit})", "deg")
-    plot_panel(img, (450, 30, 900, 330), xs, state, fails,
+    plot_panel(img, (450, 30, 900, 315), xs, state, fails,
                gates["state_error_deg" if su == "deg" else "state_error_mm"],
                "joint state error", f"strength ({unit})", su)
+    _text(img, "green: every joint gate passes; red dot: a gate fails; red cross at the top: "
+          "the run failed or refused", (10, 322), 0.38, (90, 90, 90))
     ok, buf = cv2.imencode(".png", img)
     path.write_bytes(buf.tobytes())
 
@@ -210,10 +221,11 @@ def write_report(out: Path, args, table: dict, gates: dict) -> None:
     for title, unit, xs, rows in table.values():
         brk = next(((x, r) for x, r in zip(xs, rows, strict=True) if not r["passes"]), None)
         if brk is None:
-            where, how = f"not within {max(xs):g} {unit}", "every run passes"
+            where, how = f"not up to {xs[-1]:g} {unit}", "every run passes"
         else:
             x, r = brk
-            where = f"{x:g} {unit}"
+            k = xs.index(x)
+            where = f"{x:g} {unit}" + (f" (last pass {xs[k - 1]:g})" if k else "")
             if r["error"]:
                 how = ("refused: " if r["refused"] else "failed: ") + r["error"][:120]
             else:
@@ -226,13 +238,16 @@ def write_report(out: Path, args, table: dict, gates: dict) -> None:
     for name, (title, unit, xs, rows) in table.items():
         lines += [f"### {title}", "", f"![{name}]({name}.png)", "",
                   f"| strength ({unit}) | axis angle (deg) | axis position (mm) | state error | "
-                  "segmentation | scale error (%) | passes | error |",
-                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+                  "segmentation | scale error (%) | camera position (mm) | matches (rejected) | "
+                  "passes | error |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
         for x, r in zip(xs, rows, strict=True):
             lines.append(
                 f"| {x:g} | {_f(r['axis_angle_deg'])} | {_f(r['axis_position_mm'])} | "
                 f"{_f(r['state_error'])} {r['state_unit'] or ''} | "
                 f"{_f(r['segmentation_accuracy'], 3)} | {_f(r['scale_error_pct'])} | "
+                f"{_f(r['camera_position_error_mm'])} | "
+                f"{_f(r.get('matches'))} ({_f(r.get('match_outliers'))}) | "
                 f"{'yes' if r['passes'] else 'no'} | {(r['error'] or '')[:160]} |")
         lines.append("")
     (out / "robustness.md").write_text("\n".join(lines) + "\n")
@@ -253,19 +268,26 @@ def main(argv=None) -> int:
     p.add_argument("--only", nargs="*", choices=sorted(SWEEPS), help="these perturbations")
     p.add_argument("--use-poses", action="store_true", help="reconstruct from FK camera poses")
     p.add_argument("--redo", action="store_true", help="rerun runs that have results")
+    p.add_argument("--report-only", action="store_true",
+                   help="run nothing: report the runs already in OUT")
     args = p.parse_args(argv)
     from sim.evaluate import GATES
 
     out = args.out.resolve()
     (out / "cache").mkdir(parents=True, exist_ok=True)
     names = args.only or list(SWEEPS)
-    base = summarise(run_one(out, "baseline", args.scene, args.views, [], args.use_poses,
-                             args.redo), GATES)
+    base_res = run_one(out, "baseline", args.scene, args.views, [], args.use_poses, args.redo,
+                       args.report_only)
+    if base_res is None:
+        p.error(f"no baseline run in {out}; run without --report-only first")
+    base = summarise(base_res, GATES)
     table = {}
     for name in names:
         title, unit, full, reduced, opts = SWEEPS[name]
         strengths = [reduced[-1]] if args.strongest else reduced if args.reduced else full
         xs = [args.views] if name == "views" else [0]
+        if name == "motion" and base.get("state_true") is not None:
+            xs = [round(abs(base["state_true"]), 1)]  # unperturbed: the scene's own motion
         rows = [base]
         for s in strengths:
             extra = opts(s)
@@ -273,7 +295,9 @@ def main(argv=None) -> int:
             if name == "views":
                 views, extra = int(s), []
             res = run_one(out, _run_id(name, s), args.scene, views, extra, args.use_poses,
-                          args.redo)
+                          args.redo, args.report_only)
+            if res is None:
+                continue
             xs.append(s)
             rows.append(summarise(res, GATES))
             table[name] = (title, unit, xs, rows)
