@@ -59,7 +59,11 @@ class AssignConfig:
     cost_photo: float = 1.0
     """Times ``(1 - NCC) / 2``; only where every hypothesis has a patch in both configurations."""
     cost_match: float = 0.3
-    """Cost of disagreeing with the nearest segmented match's link."""
+    """Cost of disagreeing with the nearest segmented match's link ..."""
+    match_reach: float = 10.0
+    """... fading with the distance to that match (e-fold at this many point spacings): a match
+    says little about a point far from it, such as the inside of a drawer that only one
+    configuration shows."""
     smoothness: float = 0.5
     """Potts weight per neighbour with another label."""
     neighbours: int = 8
@@ -238,7 +242,8 @@ def label_points(src, src_normals, dst, transforms, residuals, match_src, match_
     """
     K, n = len(transforms), len(src)
     good = match_labels >= 0
-    nearest = match_labels[good][cKDTree(match_src[good]).query(src)[1]]
+    d_match, i_match = cKDTree(match_src[good]).query(src)
+    nearest = match_labels[good][i_match]
     if K == 1:
         return np.zeros(n, int)
     tree = cKDTree(dst)
@@ -275,7 +280,9 @@ def label_points(src, src_normals, dst, transforms, residuals, match_src, match_
         / config.violations_saturate
     all_photo = np.isfinite(ncc).all(0)
     U = U + np.where(all_photo, config.cost_photo * (1.0 - np.nan_to_num(ncc)) / 2.0, 0.0)
-    U = U + config.cost_match * (np.arange(K)[:, None] != nearest[None, :])
+    src_spacing = float(np.median(cKDTree(src).query(src, k=2)[0][:, 1]))
+    prior = config.cost_match * np.exp(-d_match / (config.match_reach * src_spacing))
+    U = U + prior[None, :] * (np.arange(K)[:, None] != nearest[None, :])
     labels = _potts_icm(U, _graph(src, config.neighbours, config.neighbour_radius),
                         config.smoothness, config.iterations, np.random.default_rng(seed))
     log.debug("assign: %d points, fit by one link %.0f%%, several %.0f%%, none %.0f%%; "
