@@ -303,6 +303,12 @@ def register_stage(model, model_dir: Path, set_a: Path, scene: Scene, seed: int)
     summary["pnp"], summary["pnp_reason"] = None, None
     try:
         summary["pnp"] = _pnp_route(model, model_dir, set_a, scene, cams, sfm, reg, seed)
+        # issue 9: the two routes' agreement, overall and at each joint's axis, joins the
+        # joints' confidence records of the registered model
+        from artrecon.confidence import registration_agreement
+
+        summary["pnp"]["agreement"] = registration_agreement(
+            model, reg.T_robot_model, summary["pnp"].pop("_T"), registered=registered)
     except Exception as err:  # a route that does not work is reported, not hidden
         summary["pnp_reason"] = f"{type(err).__name__}: {err}"
         log.warning("%s: PnP registration route failed: %s", scene.name, err)
@@ -357,7 +363,7 @@ def _pnp_route(model, model_dir, set_a, scene, cams, sfm, reg, seed) -> dict:
             "hand_eye_consistency_deg": he.rotation_residual_deg,
             "pnp_inliers": int(pnp.inliers.sum()), "pnp_matches": int(len(pnp.matches)),
             "pnp_reprojection_rms_px": pnp.reprojection_rms,
-            "disagreement": cmp.to_dict()}
+            "disagreement": cmp.to_dict(), "_T": T_pnp}
 
 
 def manipulation_stage(scene: Scene, registered, joint_index: int, set_a: Path,
@@ -524,6 +530,7 @@ def score_joints(scene: Scene, registered, link_map: dict[int, int] | None = Non
                        axis_angle_deg=metrics.axis_angle_error_deg(ej.axis_direction, tj.axis),
                        angle_to_table_normal_deg=metrics.angle_to_normal_deg(
                            ej.axis_direction, TABLE_NORMAL))
+            row["confidence"] = ej.confidence  # artrecon's own evidence (issue 9)
             swapped = _swapped(scene, tj, ej, link_map)
             row["links_swapped"] = swapped
             row["paired_by_links"] = by_links[ti]

@@ -103,13 +103,14 @@ def summary_rows(results: dict) -> list[list[str]]:
                     _f(j.get("axis_angle_deg"), 2), _f(j.get("axis_position_mm"), 1),
                     (f"{_f(j.get('state_error'), 2)} {j.get('state_error_unit', '')}"
                      if j.get("state_error") is not None else "-"),
-                    _f(j.get("angle_to_table_normal_deg"), 1)]
+                    _f(j.get("angle_to_table_normal_deg"), 1),
+                    _f((j.get("confidence") or {}).get("score"), 2)]
             rows.append(base[:1] + jrow + base[1:])
     return rows
 
 
 HEADER = ["scene", "joint", "type true/est", "axis deg", "pos mm", "state err",
-          "axis-normal deg", "seg acc", "acc mm", "compl", "compl hidden", "cam mm",
+          "axis-normal deg", "confidence", "seg acc", "acc mm", "compl", "compl hidden", "cam mm",
           "scale %", "manip achieved/req, force", "wall s", "status"]
 
 
