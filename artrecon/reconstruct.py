@@ -70,6 +70,11 @@ log = logging.getLogger(__name__)
 #: joint worth modelling moves by centimetres or degrees, far above 0.5% / 1 degree.
 MERGE_MAX_DISPLACEMENT = 0.005
 MERGE_MAX_ROTATION = np.deg2rad(1.0)
+#: ... or whose relative motion moves the second one's matches (RMS) by less than this many times
+#: the two links' match residual (RMS, the larger): a motion the noise could make is no joint
+#: (artrecon.confidence refuses such a joint with the same ratio, MIN_MOTION_SNR; seen: a
+#: barrett_hand run split off a "link" moving 1.5 x the noise, 0.18 deg, beside the two fingers).
+MERGE_MIN_MOTION_SNR = 3.0
 #: Background 3D points (per configuration) that take part in the matching, only to tell which
 #: link stays put with the room (the root). A sample keeps the matching cost down.
 BACKGROUND_SAMPLE = 3000
@@ -141,8 +146,9 @@ def merge_equivalent_links(points_a: np.ndarray, points_b: np.ndarray,
     body into several links with the same transform (seen on metric, low-noise matches). Link j
     joins link i when i's transform explains j's matches about as well as j's own (median
     residual below the larger of the two links' inlier thresholds), or when j hardly moves
-    relative to i (MERGE_MAX_DISPLACEMENT, MERGE_MAX_ROTATION). Links are refitted (rigid, the
-    common scale kept) after each merge; link order stays by size.
+    relative to i (MERGE_MAX_DISPLACEMENT, MERGE_MAX_ROTATION), or moves by less than
+    MERGE_MIN_MOTION_SNR x the links' residual noise. Links are refitted (rigid, the common scale
+    kept) after each merge; link order stays by size.
     """
     from artrecon.procrustes import rotation_angle
 
@@ -161,6 +167,13 @@ def merge_equivalent_links(points_a: np.ndarray, points_b: np.ndarray,
                 moved = np.median(np.linalg.norm(rel.apply(points_a[mj]) - points_a[mj], axis=1))
                 still = (moved < MERGE_MAX_DISPLACEMENT * size_a
                          and rotation_angle(rel.rotation) < MERGE_MAX_ROTATION)
+                if not still:
+                    # motion (RMS, in B units like the residuals) against the links' noise
+                    mi = labels == i
+                    disp = _rms(transforms[i], points_a[mj], transforms[j].apply(points_a[mj]))
+                    noise = max(_rms(transforms[i], points_a[mi], points_b[mi]),
+                                _rms(transforms[j], points_a[mj], points_b[mj]))
+                    still = bool(disp < MERGE_MIN_MOTION_SNR * noise)
                 if still or np.median(res) < max(thresholds[i], thresholds[j]):
                     labels[mj] = i
                     labels[labels > j] -= 1
@@ -188,6 +201,12 @@ def merge_equivalent_links(points_a: np.ndarray, points_b: np.ndarray,
                         thresholds=[thresholds[k] for k in order],
                         scene_size_a=seg.scene_size_a, scene_size_b=seg.scene_size_b,
                         hypotheses=list(seg.hypotheses), rms=rms)
+
+
+def _rms(T, pa: np.ndarray, pb: np.ndarray) -> float:
+    if len(pa) == 0:
+        return 0.0
+    return float(np.sqrt(np.mean(np.sum((T.apply(pa) - pb) ** 2, axis=1))))
 
 
 def static_link(segmentation: Segmentation, background_a: np.ndarray,

@@ -161,3 +161,24 @@ def test_merge_joins_a_link_that_barely_moves_but_keeps_a_real_joint():
     out = merge_equivalent_links(pa, pb, seg)
     assert out.n_links == 2
     assert np.all(out.labels[:200] == 0) and np.all(out.labels[200:] == 1)
+
+
+def test_merge_joins_a_link_whose_motion_is_within_the_noise():
+    """Matches with 1 cm noise: a link moved 1.5 cm relative to the base (1.5 x the noise, a
+    split the noise can make) is the base; one moved 15 cm is a joint."""
+    rng = np.random.default_rng(5)
+    pa = rng.random((600, 3))
+    labels = np.r_[np.zeros(300), np.ones(100), np.full(200, 2)].astype(int)
+    ident = Similarity(np.eye(3), np.zeros(3), 1.0)
+    noise = 0.01 / np.sqrt(3)  # 1 cm RMS in 3D
+    pb = pa + rng.normal(0, noise, pa.shape)
+    small = Similarity(np.eye(3), np.array([0.015, 0, 0]), 1.0)
+    pull = Similarity(np.eye(3), np.array([0.15, 0, 0]), 1.0)
+    pb[labels == 1] += small.translation
+    pb[labels == 2] += pull.translation
+    seg = Segmentation(labels=labels, transforms=[ident, small, pull], scale=1.0,
+                       thresholds=[1e-3, 1e-3, 1e-3], rms=[0.01, 0.01, 0.01], scene_size_a=1.0,
+                       scene_size_b=1.0)
+    out = merge_equivalent_links(pa, pb, seg)
+    assert out.n_links == 2
+    assert np.all(out.labels[:400] == 0) and np.all(out.labels[400:] == 1)
