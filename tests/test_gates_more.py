@@ -230,6 +230,10 @@ GATE_JOINTS = {
 #: Known misses, measured at 18 views per ring, seed 0: {(scene, gate): reason}. Strict: the
 #: day a scene passes, the entry must go. Gates are never loosened here.
 KNOWN_MISSES: dict[tuple[str, str], str] = {
+    ("cabinet", "segmentation"): "measured 0.924 < 0.95 (0.911 before the dense-point "
+                                 "assignment rework): drawer and door points at the front face "
+                                 "and the drawer bottom by the shelf take a neighbour's link; "
+                                 "both joints pass",
     ("pliers_panda", "segmentation"): "measured 0.922 < 0.95 (the pliers' own miss, 0.929 in "
                                       "tests/test_gates.py; the joint passes)",
 }
