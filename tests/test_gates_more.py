@@ -15,6 +15,7 @@ Two parts:
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -243,7 +244,10 @@ _RESULTS: dict[str, dict] = {}
 
 @pytest.fixture(scope="module")
 def gate_out(tmp_path_factory):
-    return tmp_path_factory.mktemp("gates_more")
+    """A fresh folder per session; ARTRECON_GATES_OUT names a folder to keep instead (its stage
+    cache, keyed by the inputs and the code, then serves the next session)."""
+    keep = os.environ.get("ARTRECON_GATES_OUT")
+    return Path(keep) if keep else tmp_path_factory.mktemp("gates_more")
 
 
 def _result(name, out):
