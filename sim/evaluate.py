@@ -28,6 +28,11 @@ goes on; the exit status is 1 if any scene failed.
 Ground truth used for scoring (never given to ``artrecon``):
 
 - joints: :class:`sim.scene.Joint` (world axis and point at configuration A, values in A and B);
+  each moving joint is paired with the estimated joint between the same two links (then, for the
+  rest, by axis geometry: :func:`pair_joints`); ``tree_correct`` says whether every pair joins
+  the right links, ``invented_joints`` lists estimates left over, ``static_joints`` the joints
+  that did not move (never expected to be found: their child link is one rigid body with its
+  parent, and is scored as part of it, :func:`rigid_bodies`);
 - true surfaces: the object's visual meshes placed by MuJoCo at configuration A, sampled
   uniformly by area (:data:`SURFACE_SPACING_M`, fixed seed), each sample labelled with its link.
   Segmentation accuracy gives every registered model point the link of the nearest sample within
