@@ -15,11 +15,12 @@ manipulation achieved within 10% of requested.
 """
 
 import os
+from pathlib import Path
 
 import pytest
 
 import sim  # noqa: F401
-from sim import evaluate
+from sim import evaluate, report
 
 #: Views per full capture ring in the gates (see the module docstring).
 GATE_VIEWS = int(os.environ.get("ARTRECON_GATE_VIEWS", "18"))
@@ -32,9 +33,19 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
-    out = tmp_path_factory.mktemp("gates")
+    """Every gate scene, evaluated once. ARTRECON_GATES_OUT names a folder to keep instead of a
+    temporary one: its stage cache serves the next session, and results.json / results.md there
+    hold the figures behind the gates."""
+    keep = os.environ.get("ARTRECON_GATES_OUT")
+    out = Path(keep) / "gates" if keep else tmp_path_factory.mktemp("gates")
     ev = evaluate.EvalConfig(views=GATE_VIEWS, seed=0, progress=False)
-    return {name: evaluate.evaluate_scene(name, ev, out) for name in GATE_SCENES}
+    res = {name: evaluate.evaluate_scene(name, ev, out) for name in GATE_SCENES}
+    if keep:
+        meta = {"source": "tests/test_gates.py", "views_per_ring": GATE_VIEWS, "seed": 0,
+                "gates": evaluate.GATES}
+        report.write_results({"scenes": {n: report.jsonable_scene(r) for n, r in res.items()},
+                              "meta": meta}, out)
+    return res
 
 
 def _scene(results, name):
