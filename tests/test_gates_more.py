@@ -7,9 +7,10 @@ Two parts:
    drawer left still), with known errors; the joints must be paired by the links they join, the
    kinematic tree judged, a static joint reported and never counted as found or invented, and the
    link behind a static joint scored as part of its parent.
-2. **Accuracy gates** (slow, the whole method as in tests/test_gates.py: capture, SfM from the
-   images alone, registration, manipulation, score) on the scenes the bundled gates do not cover.
-   See GATE_SCENES_MORE for which scenes, at which settings, and why.
+2. **Accuracy gates** (slow, the whole method as in tests/test_gates.py: capture, reconstruction
+   (SfM from the images alone, or the arm's known camera poses), registration, manipulation,
+   score) on the scenes the bundled gates do not cover. See GATE_SCENES_MORE for which scenes, at
+   which settings, and why.
 """
 
 from __future__ import annotations
@@ -201,20 +202,25 @@ GATE_VIEWS = int(os.environ.get("ARTRECON_GATE_VIEWS", "18"))
 
 #: scene -> (EvalConfig settings, why). CI budget: tests/test_gates.py already spends ~7 min on
 #: pliers, truck and drawer with SfM from the images and manipulation; the whole suite must stay
-#: well under 30 min on 2 cores, and each scene here costs 2-3 min with SfM. So:
-#: - scraper_truck, cabinet, barrett_hand: what is new to the method (a chain of two hinges; a
-#:   hinge and a slide in one object; two coupled hinges) runs exactly like the bundled gates:
-#:   SfM from the images alone, registration, manipulation of the first joint.
-#: - cabinet_door_only: the static-joint check (one joint found, none invented). The door is
-#:   cabinet's, already reconstructed from images and manipulated above, so here the cameras
-#:   are the arm's known poses (use_poses: triangulation, no SfM) and no manipulation.
+#: well under 30 min on 2 cores. Measured on an idle machine: captures 12-20 s per configuration,
+#: reconstruction ~2.5 min with SfM from the images and ~1 min from the arm's known camera poses
+#: (use_poses: triangulation, no SfM). So:
+#: - scraper_truck: SfM from the images alone, as the bundled gates: the three-link chain is the
+#:   hardest structure here (the blade's motion relative to the chassis is a clean rotation too).
+#: - cabinet (a hinge and a slide in one object), barrett_hand (two coupled hinges, a fixed
+#:   finger): known poses. What is new in them is the structure, not the SfM (which the bundled
+#:   three and scraper_truck gate); with SfM they pass the same gates (python -m sim.evaluate;
+#:   figures in the issue 10 report). Manipulation of their first joint, as everywhere.
+#: - cabinet_door_only: the static-joint check (one joint found, none invented); known poses and
+#:   no manipulation (the door is cabinet's, manipulated above).
 #: - pliers_panda: the other arm, the full evaluation (capture, reconstruct, register,
-#:   manipulate) with the Panda; the pliers themselves are gated by SfM in test_gates.py, so the
-#:   reconstruction here uses the arm's known poses.
+#:   manipulate) with the Panda; known poses (the pliers' SfM is gated in test_gates.py).
+#: scissors is not gated in CI (budget): it misses the axis gate (2.45 deg) and segmentation
+#: (0.913) at 18 views, see the issue 10 report; python -m sim.evaluate scissors shows it.
 GATE_SCENES_MORE = {
     "scraper_truck": ({}, "chain of two hinges"),
-    "cabinet": ({}, "hinge and slide in one object"),
-    "barrett_hand": ({}, "two coupled hinges, a fixed finger"),
+    "cabinet": ({"use_poses": True}, "hinge and slide in one object"),
+    "barrett_hand": ({"use_poses": True}, "two coupled hinges, a fixed finger"),
     "cabinet_door_only": ({"use_poses": True, "manipulate": False}, "static drawer"),
     "pliers_panda": ({"use_poses": True}, "the Panda arm"),
 }
@@ -231,10 +237,9 @@ GATE_JOINTS = {
 #: Known misses, measured at 18 views per ring, seed 0: {(scene, gate): reason}. Strict: the
 #: day a scene passes, the entry must go. Gates are never loosened here.
 KNOWN_MISSES: dict[tuple[str, str], str] = {
-    ("cabinet", "segmentation"): "measured 0.924 < 0.95 (0.911 before the dense-point "
-                                 "assignment rework): drawer and door points at the front face "
-                                 "and the drawer bottom by the shelf take a neighbour's link; "
-                                 "both joints pass",
+    ("cabinet", "segmentation"): "measured 0.913 < 0.95 with known poses (0.924 with SfM): "
+                                 "drawer and door points at the front face and the drawer "
+                                 "bottom by the shelf take a neighbour's link; both joints pass",
     ("pliers_panda", "segmentation"): "measured 0.922 < 0.95 (the pliers' own miss, 0.929 in "
                                       "tests/test_gates.py; the joint passes)",
 }
