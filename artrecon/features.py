@@ -111,13 +111,19 @@ def _top2(sim: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return nn, to_dist(best), to_dist(second)
 
 
-def _mutual_ratio(da: np.ndarray, db: np.ndarray, ratio: float) -> tuple[np.ndarray, np.ndarray]:
-    """Indices (ia, ib) of mutual nearest neighbours that pass the ratio test both ways."""
+def _mutual_ratio(da: np.ndarray, db: np.ndarray, ratio: float,
+                  sim: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (ia, ib) of mutual nearest neighbours that pass the ratio test both ways.
+
+    ``sim`` is ``da @ db.T`` when the caller already has it; the B -> A direction uses its
+    transpose (one product per pair, not two).
+    """
     if len(da) < 2 or len(db) < 2:
         return np.zeros(0, int), np.zeros(0, int)
-    sim = da @ db.T
+    if sim is None:
+        sim = da @ db.T
     a_nn, a_d1, a_d2 = _top2(sim)
-    b_nn, b_d1, b_d2 = _top2(db @ da.T)
+    b_nn, b_d1, b_d2 = _top2(sim.T)
     ia = np.arange(len(da))
     ok = (b_nn[a_nn] == ia) & (a_d1 < ratio * a_d2) & (b_d1[a_nn] < ratio * b_d2[a_nn])
     return ia[ok], a_nn[ok]
@@ -132,9 +138,16 @@ def _similar_images(fa: dict, fb: dict, k: int, sample: int, seed: int) -> dict[
     names_a, names_b = sorted(fa), sorted(fb)
     sa = [pick(fa[n][1]) for n in names_a]
     sb = [pick(fb[n][1]) for n in names_b]
+    # One product per image of A against every sampled descriptor of B (many tiny products
+    # are dominated by BLAS call overhead), then the mutual ratio test per block.
+    bounds = np.cumsum([0] + [len(d) for d in sb])
+    all_b = np.concatenate(sb) if sb else np.zeros((0, 128), np.float32)
     out = {}
     for i, name in enumerate(names_a):
-        scores = np.array([len(_mutual_ratio(sa[i], s, 0.9)[0]) for s in sb])
+        sim = sa[i] @ all_b.T
+        scores = np.array([len(_mutual_ratio(sa[i], sb[j], 0.9,
+                                             sim[:, bounds[j]:bounds[j + 1]])[0])
+                           for j in range(len(sb))])
         out[name] = [names_b[j] for j in np.argsort(-scores)[:k] if scores[j] > 0]
     return out
 
