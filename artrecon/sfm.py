@@ -47,6 +47,10 @@ class SfMConfig:
     """SIFT features per image (COLMAP default 8192; 4096 halves matching time at 640x480)."""
     max_image_size: int = 1600
     """Longer image side used for extraction; larger photos are downscaled."""
+    first_octave: int = -1
+    """SIFT's first octave (COLMAP default -1: the image is upsampled 2x first). 0 extracts ~3x
+    faster (measured 0.28 -> 0.09 s per 640x480 image) but finds half the keypoints, and the
+    small, flat links (pliers, scissors) already have the fewest cross-configuration matches."""
     matching: str = "auto"
     """'auto' (sequential window + retrieval pairs), 'exhaustive', or 'sequential' (window only)."""
     sequential_window: int = 4
@@ -156,6 +160,7 @@ def extract(image_set: ImageSet, database_path: Path, intrinsics: Intrinsics | N
     ext.max_image_size = config.max_image_size
     ext.num_threads = config.num_threads
     ext.sift.max_num_features = config.max_num_features
+    ext.sift.first_octave = config.first_octave
     pycolmap.extract_features(database_path, image_set.image_dir, image_names=image_set.names,
                               camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
                               extraction_options=ext, device=pycolmap.Device.cpu)
