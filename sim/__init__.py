@@ -8,3 +8,27 @@ import os
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+def _egl_device_type() -> None:
+    """Give PyOpenGL 3.1.0's EGL module the ``EGLDeviceEXT`` handle type.
+
+    pyrender 0.1.45 pins PyOpenGL 3.1.0, whose EGL bindings predate EGL_EXT_device_base; with
+    MUJOCO_GL=egl, ``import mujoco`` (4.x) loads its EGL backend, which needs that type, and fails
+    with an AttributeError. PyOpenGL >= 3.1.1 defines it exactly so: an opaque pointer.
+    OpenGL.GL's shader module is imported first: PyOpenGL 3.1.0 compares GL extension names
+    (str) with EGL's prefix (bytes) once EGL is loaded, so importing pyrender after it fails.
+    """
+    try:
+        import OpenGL.GL.shaders  # noqa: F401 (before OpenGL.EGL, see above)
+        from OpenGL import EGL
+        from OpenGL._opaque import opaque_pointer_cls
+        from OpenGL.raw.EGL import _types
+    except Exception:  # no EGL library here: rendering will say so when it is needed
+        return
+    if not hasattr(EGL, "EGLDeviceEXT"):
+        _types.EGLDeviceEXT = EGL.EGLDeviceEXT = opaque_pointer_cls("EGLDeviceEXT")
+
+
+if os.environ.get("MUJOCO_GL") == "egl":
+    _egl_device_type()
