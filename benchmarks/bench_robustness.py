@@ -142,7 +142,7 @@ def plot_panel(img, box, xs, ys, fails, gate, title, xlabel, ylabel):
     x0, y0, x1, y1 = box
     px0, py0, px1, py1 = x0 + 60, y0 + 30, x1 - 15, y1 - 45
     cv2.rectangle(img, (px0, py0), (px1, py1), (120, 120, 120), 1)
-    _text(img, title, (x0 + 8, y0 + 18), 0.5, (0, 0, 0), 1)
+    _text(img, f"{title} ({ylabel})", (x0 + 8, y0 + 18), 0.5, (0, 0, 0), 1)
     finite = [v for v in ys if v is not None]
     top = max([gate * 2.0] + [min(v, 10 * gate) for v in finite]) * 1.1
     xmin, xmax = min(xs), max(xs)
@@ -162,7 +162,6 @@ def plot_panel(img, box, xs, ys, fails, gate, title, xlabel, ylabel):
         cv2.line(img, (X(x), py1), (X(x), py1 + 4), (120, 120, 120), 1)
         _text(img, f"{x:g}", (X(x) - 10, py1 + 18), 0.38)
     _text(img, xlabel, ((px0 + px1) // 2 - 4 * len(xlabel), y1 - 8), 0.42)
-    _text(img, ylabel, (px0 + 4, py0 - 4 + 18), 0.38, (90, 90, 90))
     for xa in range(px0, px1, 12):  # dashed gate line
         cv2.line(img, (xa, Y(gate)), (min(xa + 6, px1), Y(gate)), (0, 140, 255), 1)
     _text(img, f"gate {gate:g}", (px1 - 70, Y(gate) - 5), 0.38, (0, 110, 220))
