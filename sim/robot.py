@@ -318,6 +318,10 @@ IK_TOL_ROTATION = 1e-6
 #: (0.1 mm, 0.1 mrad: a tenth of a pixel at 0.5 m for the 554 px wrist camera).
 IK_ACCEPT_POSITION = 1e-4
 IK_ACCEPT_ROTATION = 1e-4
+#: An IK descent gives up when its error (m + rad) has not fallen by 5% (to this share) within
+#: IK_STALL_ITERATIONS iterations: a converging descent gains far more (damped Gauss-Newton)
+IK_STALL_IMPROVEMENT = 0.95
+IK_STALL_ITERATIONS = 30
 
 
 @dataclass(frozen=True)
@@ -504,11 +508,20 @@ class ArmKinematics:
     def _descend(self, q, fid, M_target, position_only, free, max_iter, damping) -> IKResult:
         pin = self._pin
         max_step = 0.3  # rad per iteration: keeps the linearisation valid far from the target
-        for _ in range(max_iter):
+        reference, since = np.inf, 0
+        for it in range(max_iter):
             pin.forwardKinematics(self.model, self.data, q)
             pin.updateFramePlacement(self.model, self.data, fid)
             p_err, r_err = self._errors(fid, M_target, position_only)
             if p_err < IK_TOL_POSITION and r_err < IK_TOL_ROTATION:
+                break
+            # stalled (against a joint limit, in a local minimum, or at the solver's precision):
+            # the rest of the iterations would not change the outcome. Most attempts of a view
+            # plan are at targets out of reach, and they used to spend every iteration here
+            error = p_err + r_err
+            if error < IK_STALL_IMPROVEMENT * reference:
+                reference, since = error, it
+            elif it - since >= IK_STALL_ITERATIONS:
                 break
             M = self.data.oMf[fid]
             if position_only:
