@@ -764,6 +764,16 @@ def _manipulation(scene, registered, result, set_a, keys, ev, cache_root, scene_
 # ---------------------------------------------------------------------------- run
 
 
+def run_meta(ev: EvalConfig, command: str) -> dict:
+    """The ``meta`` record of a results.json: versions, settings, command, date, platform
+    (``scene_hashes`` is filled in as scenes run)."""
+    return {"versions": _versions(), "seed": ev.seed, "views_per_ring": ev.views,
+            "use_poses": ev.use_poses, "manipulate": ev.manipulate,
+            "perturbation": ev.perturb.changed(), "command": command,
+            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "scene_hashes": {}, "gates": GATES, "platform": platform.platform()}
+
+
 def run(names: list[str], ev: EvalConfig, out_dir: Path, argv: list[str] | None = None) -> dict:
     """Evaluate scenes and write the report folder. Returns the results dict (results.json)."""
     from tqdm import tqdm
@@ -772,13 +782,8 @@ def run(names: list[str], ev: EvalConfig, out_dir: Path, argv: list[str] | None 
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    results = {"scenes": {}, "meta": {
-        "versions": _versions(), "seed": ev.seed, "views_per_ring": ev.views,
-        "use_poses": ev.use_poses, "manipulate": ev.manipulate,
-        "perturbation": ev.perturb.changed(),
-        "command": " ".join(["python -m sim.evaluate", *(argv or [])]),
-        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "scene_hashes": {}, "gates": GATES, "platform": platform.platform()}}
+    results = {"scenes": {},
+               "meta": run_meta(ev, " ".join(["python -m sim.evaluate", *(argv or [])]))}
     for name in tqdm(names, desc="scenes", unit="scene", disable=not ev.progress):
         res = evaluate_scene(name, ev, out_dir)
         results["meta"]["scene_hashes"][res["scene"]] = res.get("scene_hash")

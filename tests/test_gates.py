@@ -41,8 +41,8 @@ def results(tmp_path_factory):
     ev = evaluate.EvalConfig(views=GATE_VIEWS, seed=0, progress=False)
     res = {name: evaluate.evaluate_scene(name, ev, out) for name in GATE_SCENES}
     if keep:
-        meta = {"source": "tests/test_gates.py", "views_per_ring": GATE_VIEWS, "seed": 0,
-                "gates": evaluate.GATES}
+        meta = evaluate.run_meta(ev, "pytest tests/test_gates.py")
+        meta["scene_hashes"] = {n: r.get("scene_hash") for n, r in res.items()}
         report.write_results({"scenes": {n: report.jsonable_scene(r) for n, r in res.items()},
                               "meta": meta}, out)
     return res
