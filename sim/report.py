@@ -80,6 +80,51 @@ def _f(v, digits: int = 2, unit: str = "") -> str:
     return str(v)
 
 
+def tree_verdict(r: dict) -> str:
+    """A scene's kinematic-tree cell: ``yes``/``no`` (:func:`sim.evaluate.score_joints`'s
+    ``tree_correct``), then how many estimated joints were invented and how many true joints
+    were static; ``-`` when the scene was not scored."""
+    if r.get("tree_correct") is None:
+        return "-"
+    parts = ["yes" if r["tree_correct"] else "NO"]
+    if r.get("invented_joints"):
+        parts.append(f"{len(r['invented_joints'])} invented")
+    if r.get("static_joints"):
+        parts.append(f"{len(r['static_joints'])} static")
+    return ", ".join(parts)
+
+
+def _invented(j) -> str:
+    if not isinstance(j, dict):
+        return str(j)
+    return (f"{j.get('name')} ({j.get('type')}, axis "
+            f"{_f(j.get('angle_to_table_normal_deg'), 1)} deg from the table normal)")
+
+
+def tree_lines(r: dict) -> list[str]:
+    """The kinematic-tree section of a scene: verdict, pairs, invented and static joints."""
+    if r.get("tree_correct") is None:
+        return []
+    pairs = ", ".join(f"{t} <- {e}" for e, t in r.get("pairs") or []) or "none"
+    moving = r.get("n_true_moving_joints")
+    out = [f"- kinematic tree: {'correct' if r['tree_correct'] else '**wrong**'} "
+           f"({r.get('n_estimated_joints')} estimated joint(s) for {moving} moving; true <- "
+           f"estimated: {pairs}"
+           + (f"; links: {', '.join(f'{k} = {v}' for k, v in r['link_correspondence'].items())}"
+              if r.get("link_correspondence") else "") + ")"]
+    not_by_links = [j["name"] for j in r.get("joints") or []
+                    if j.get("estimated_joint") is not None and not j.get("paired_by_links")]
+    if not_by_links:
+        out.append("- paired by axis geometry, not by the links they join: "
+                   + ", ".join(not_by_links))
+    out.append("- invented joints: " + ("; ".join(_invented(j) for j in r["invented_joints"])
+                                        if r.get("invented_joints") else "none"))
+    out.append("- static joints (did not move; reported as static, not to be found; their link "
+               "is scored with its parent): " + (", ".join(r["static_joints"])
+                                                 if r.get("static_joints") else "none"))
+    return out
+
+
 def summary_rows(results: dict) -> list[list[str]]:
     """One row per (scene, true moving joint): the headline figures in report units."""
     rows = []
@@ -94,7 +139,7 @@ def summary_rows(results: dict) -> list[list[str]]:
                 _f(model.get("accuracy_median_mm"), 1), _f(model.get("completeness"), 2),
                 _f(hidden.get("completeness"), 2),
                 _f((r.get("camera_pose_error") or {}).get("position_median_mm"), 1),
-                _f(r.get("scale_error_pct"), 2), man_s, _f(r.get("wall_s"), 0),
+                _f(r.get("scale_error_pct"), 2), tree_verdict(r), man_s, _f(r.get("wall_s"), 0),
                 "ERROR " + r["error"][:60] if r.get("error") else "ok"]
         joints = r.get("joints") or [{}]
         for j in joints:
@@ -111,7 +156,7 @@ def summary_rows(results: dict) -> list[list[str]]:
 
 HEADER = ["scene", "joint", "type true/est", "axis deg", "pos mm", "state err",
           "axis-normal deg", "confidence", "seg acc", "acc mm", "compl", "compl hidden", "cam mm",
-          "scale %", "manip achieved/req, force", "wall s", "status"]
+          "scale %", "tree ok", "manip achieved/req, force", "wall s", "status"]
 
 
 def terminal_table(results: dict) -> str:
@@ -167,13 +212,10 @@ def markdown(results: dict) -> str:
                     f"({_f(model.get('hidden_share_of_surface'), 2)} of the surface): accuracy "
                     f"{_f(h.get('accuracy_median_mm'), 2)} mm, completeness "
                     f"{_f(h.get('completeness'), 3)}"]
-        if r.get("invented_joints"):
-            out += [f"- invented joints: {r['invented_joints']}"]
-        if r.get("static_joints"):
-            out += [f"- static joints (must not be found): {r['static_joints']}"]
+        out += tree_lines(r)
         man = r.get("manipulation")
         if man:
-            out += [f"- manipulation: {json.dumps({k: man.get(k) for k in ('requested', 'achieved', 'unit', 'peak_force_n', 'grasp_hidden', 'grasp_body', 'reason') if k in man})}"]  # noqa: E501
+            out += [f"- manipulation: {json.dumps({k: man.get(k) for k in ('joint_target', 'requested', 'achieved', 'unit', 'peak_force_n', 'grasp_hidden', 'grasp_body', 'reason') if k in man})}"]  # noqa: E501
         ts = r.get("timings_s") or {}
         if ts:
             out += ["- time (s): " + ", ".join(f"{k} {_f(v, 1)}" for k, v in ts.items())

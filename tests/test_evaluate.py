@@ -253,6 +253,52 @@ def test_results_json_shape_and_report(tmp_path):
     assert "29.0/30.0 deg" in table and "ERROR capture_a" in table
 
 
+def test_report_gives_the_kinematic_tree_verdict(tmp_path):
+    """results.md says whether the tree is right, which joints were invented and which were
+    static, per scene: in the table (a column) and in the scene's section."""
+    res = _results()
+    res["scenes"]["toy"].update(
+        tree_correct=True, invented_joints=[], static_joints=["drawer_slide"], pairs=[
+            ("est0", "hinge")], n_estimated_joints=1, n_true_moving_joints=1,
+        link_correspondence={"link_0": "object", "link_1": "door"})
+    res["scenes"]["toy"]["joints"][0].update(estimated_joint="est0", paired_by_links=True)
+    wrong = {"scene": "chain", "error": None, "segmentation_accuracy": 0.9, "manipulation": None,
+             "timings_s": {}, "tree_correct": False, "static_joints": [],
+             "invented_joints": [{"name": "ghost", "type": "prismatic",
+                                  "angle_to_table_normal_deg": 88.04}],
+             "pairs": [("e_boom", "boom"), ("e_blade", "blade")], "n_estimated_joints": 3,
+             "n_true_moving_joints": 2,
+             "joints": [{"name": "boom", "type_true": "revolute", "estimated_joint": "e_boom",
+                         "paired_by_links": True, "state_error_unit": "deg"},
+                        {"name": "blade", "type_true": "revolute", "estimated_joint": "e_blade",
+                         "paired_by_links": False, "state_error_unit": "deg"}]}
+    res["scenes"]["chain"] = wrong
+    report.write_results(res, tmp_path)
+    back = json.loads((tmp_path / "results.json").read_text())
+    assert back["scenes"]["toy"]["tree_correct"] is True
+    assert back["scenes"]["chain"]["invented_joints"][0]["name"] == "ghost"
+    md = (tmp_path / "results.md").read_text()
+    col = report.HEADER.index("tree ok")
+    cells = {line.split(" | ")[0].lstrip("| "): line.strip("|").split(" | ")[col].strip()
+             for line in md.splitlines() if line.startswith("| ") and " | " in line}
+    assert cells["toy"] == "yes, 1 static"
+    assert cells["chain"] == "NO, 1 invented"
+    assert cells["broken"] == "-"  # failed before scoring: no verdict
+    toy = md.split("## toy")[1].split("## ")[0]
+    assert "- kinematic tree: correct (1 estimated joint(s) for 1 moving; true <- estimated: " \
+           "hinge <- est0; links: link_0 = object, link_1 = door)" in toy
+    assert "- invented joints: none" in toy
+    assert "not to be found; their link is scored with its parent): drawer_slide" in toy
+    chain = md.split("## chain")[1]
+    assert "- kinematic tree: **wrong** (3 estimated joint(s) for 2 moving" in chain
+    assert "- paired by axis geometry, not by the links they join: blade" in chain
+    assert "- invented joints: ghost (prismatic, axis 88.0 deg from the table normal)" in chain
+    assert "static joints" in chain and chain.split("static joints")[1].split("\n")[0].endswith(
+        ": none")
+    assert "kinematic tree" not in md.split("## broken")[1].split("## ")[0]
+    assert report.tree_verdict(back["scenes"]["chain"]) in report.terminal_table(back)
+
+
 def test_error_chart_marks_failures():
     bars = report.error_bars(_results()["scenes"]["toy"], evaluate.GATES)
     labels = [b[0] for b in bars]
