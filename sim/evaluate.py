@@ -10,7 +10,8 @@ Per scene (a bundled name or an MJCF path; default: every bundled scene):
    (:func:`artrecon.register.register_camera_centres`). The paper's route (hand-eye calibration
    from the capture + PnP of the last image of A) is run beside it and its disagreement reported;
    when it fails the report says so (``null`` and the reason);
-4. **manipulate**: the arm grasps the moving link of the scene's first joint at the point
+4. **manipulate**: the arm grasps the child link of the scene's first moving joint that has an
+   estimated joint (:func:`manipulation_target`; a static joint has none) at the point
    :func:`sim.manipulate.manipulate` chooses by default (preferring one hidden from the wrist camera
    at the last view of A, where the arm is after the capture) and moves it along the *estimated*
    joint by the *estimated* motion A -> B;
@@ -373,16 +374,19 @@ def _pnp_route(model, model_dir, set_a, scene, cams, sfm, reg, seed) -> dict:
 
 def manipulation_stage(scene: Scene, registered, joint_index: int, set_a: Path,
                        keys: list[str], ev: EvalConfig, cache_root: Path,
-                       scene_hash: str, swapped: bool = False) -> tuple[dict, dict, bool]:
-    """Move the scene's first joint along the estimated joint ``joint_index`` (cached).
+                       scene_hash: str, swapped: bool = False,
+                       true_joint: str | None = None) -> tuple[dict, dict, bool]:
+    """Move the scene's joint ``true_joint`` (default :func:`sim.manipulate.default_joint`)
+    along the estimated joint ``joint_index`` (cached).
 
-    The arm grasps the scene's moving link (sim.manipulate's default candidates); when the model
+    The arm grasps that joint's child link (sim.manipulate's default candidates); when the model
     took that link as the parent (``swapped``), the motion of the grasped link is the model's
     joint motion reversed: same axis line, opposite direction (the requested amount stays the
     model's motion A -> B).
     """
-    from sim.manipulate import JointEstimate, joint_estimate_from_model, manipulate
+    from sim.manipulate import JointEstimate, default_joint, joint_estimate_from_model, manipulate
 
+    true_joint = true_joint or default_joint(scene).name
     cams = _read_json(set_a / "cameras.json")
     q_last = next((im["q"] for im in reversed(cams["images"]) if im.get("q") is not None), None)
     est, _, _ = joint_estimate_from_model(registered, joint_index)
@@ -390,13 +394,14 @@ def manipulation_stage(scene: Scene, registered, joint_index: int, set_a: Path,
         est = JointEstimate(est.type, -est.axis, est.point, "model (parent/child swapped)",
                             est.name)
     amount = float(registered.joints[joint_index].motion)
-    inputs = {"scene_hash": scene_hash, "keys": keys, "joint": joint_index, "seed": ev.seed,
+    inputs = {"scene_hash": scene_hash, "keys": keys, "joint": joint_index,
+              "true_joint": true_joint, "seed": ev.seed,
               "estimate": {"type": est.type, "axis": est.axis.tolist(),
                            "point": est.point.tolist(), "amount": amount},
               "q_start": q_last, "code": _manipulate_sources()}
 
     def build(folder: Path) -> dict:
-        res = manipulate(scene, est, amount, q_start=q_last, seed=ev.seed)
+        res = manipulate(scene, est, amount, q_start=q_last, seed=ev.seed, joint=true_joint)
         cache.write_json_atomic(folder / "manipulation.json", res.to_dict())
         return {}
 
@@ -732,18 +737,27 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
     return result
 
 
+def manipulation_target(scene: Scene, rows: list[dict]) -> dict | None:
+    """The joint row (:func:`score_joints`) of the joint to manipulate: the scene's first moving
+    joint that an estimated joint is paired with. Static joints have no row (nothing moved, so
+    nothing was estimated to follow); a moving joint the model missed is passed over for the next
+    one. None if no moving joint was estimated."""
+    by_name = {r["name"]: r for r in rows}
+    return next((by_name[j.name] for j in scene.moving_joints
+                 if by_name.get(j.name, {}).get("estimated_joint") is not None), None)
+
+
 def _manipulation(scene, registered, result, set_a, keys, ev, cache_root, scene_hash) -> dict:
     """Manipulation entry of the results (requested/achieved in deg or mm)."""
-    first = scene.joints[0] if scene.joints else None
-    row = next((r for r in result["joints"] if first is not None and r["name"] == first.name),
-               None)
-    if row is None or row["estimated_joint"] is None:
+    row = manipulation_target(scene, result["joints"])
+    if row is None:
         return {"requested": None, "achieved": None, "peak_force_n": None,
-                "reason": "no estimated joint matches the scene's first joint (the one "
-                          "sim.manipulate grasps): nothing to follow"}
+                "reason": "no moving joint of the scene has an estimated joint paired with it: "
+                          "nothing to follow"}
     idx = next(k for k, j in enumerate(registered.joints) if j.name == row["estimated_joint"])
     res, meta, hit = manipulation_stage(scene, registered, idx, set_a, keys, ev, cache_root,
-                                        scene_hash, swapped=bool(row.get("links_swapped")))
+                                        scene_hash, swapped=bool(row.get("links_swapped")),
+                                        true_joint=row["name"])
     if hit:
         result["cached_stages"].append("manipulation")
     k = np.rad2deg(1.0) if res["joint_type"] == "revolute" else 1e3
@@ -754,7 +768,8 @@ def _manipulation(scene, registered, result, set_a, keys, ev, cache_root, scene_
             "peak_force_n": res["peak_force"], "peak_torque_nm": res["peak_torque"],
             "relative_error": rel,
             "passes": rel is not None and rel <= GATES["manipulation_relative_error"],
-            "joint_moved": res["joint"], "grasp_point": res["grasp_point"],
+            "joint_target": row["name"], "joint_moved": res["joint"],
+            "grasp_point": res["grasp_point"],
             "grasp_hidden": res["grasp_hidden"], "grasp_visibility": res["grasp_visibility"],
             "grasp_body": res["grasp_body"], "tracking_max_deg": res["tracking_max_deg"],
             "path_error_max_mm": res["path_error_max_mm"], "estimate": res["estimate"],

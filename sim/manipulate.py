@@ -190,9 +190,26 @@ class JointEstimate:
         return T
 
 
+def default_joint(scene: Scene):
+    """The scene joint moved when none is named: the first one that moves between the two
+    configurations (:attr:`sim.scene.Scene.moving_joints`). A static joint did not move, so no
+    reconstruction estimates it and there is nothing to follow (cabinet_door_only's drawer); only
+    a scene whose joints are all static falls back to its first joint.
+
+    Raises
+    ------
+    ManipulationError
+        The scene has no object joint.
+    """
+    if not scene.joints:
+        raise ManipulationError(f"scene {scene.name!r} has no object joint: nothing to move")
+    return (scene.moving_joints or scene.joints)[0]
+
+
 def joint_estimate_from_scene(scene: Scene, joint: str | None = None) -> JointEstimate:
-    """The ground-truth joint of a scene (configuration A) as a :class:`JointEstimate`."""
-    j = scene.joints[0] if joint is None else scene.joint(joint)
+    """The ground-truth joint of a scene (configuration A) as a :class:`JointEstimate`; default
+    :func:`default_joint`."""
+    j = default_joint(scene) if joint is None else scene.joint(joint)
     return JointEstimate(j.type, j.axis, j.point, "ground truth", j.name)
 
 
@@ -682,7 +699,7 @@ def manipulate(scene: Scene | str, estimate: JointEstimate, amount: float, *,
                candidates: list[GraspCandidate] | None = None, grasp_point=None,
                grasp_normal=None, q_start=None, prefer_hidden: bool = True,
                record_every: float | None = None, seed: int = 0,
-               world: _World | None = None) -> ManipulationResult:
+               world: _World | None = None, joint: str | None = None) -> ManipulationResult:
     """Grasp the moving link and move it by ``amount`` along ``estimate``; measure the outcome.
 
     Parameters
@@ -695,8 +712,7 @@ def manipulate(scene: Scene | str, estimate: JointEstimate, amount: float, *,
         Requested displacement: rad (revolute) or m (prismatic), positive about/along the axis.
     candidates : list of GraspCandidate, optional
         Grasp points to choose from (e.g. a registered model's moving-link points with normals).
-        Default: points on the surfaces of the moving link's collision geoms (the link that the
-        scene's first joint moves).
+        Default: points on the surfaces of the collision geoms of ``joint``'s child link.
     grasp_point, grasp_normal : (3,) float, optional
         Grasp exactly here (overrides ``candidates``); the normal defaults to +z (from above).
     q_start : (7,) float, optional
@@ -710,6 +726,9 @@ def manipulate(scene: Scene | str, estimate: JointEstimate, amount: float, *,
         Seed of the IK restarts.
     world : optional
         A :func:`build_world` result to reuse (saves compiling the scene again).
+    joint : str, optional
+        The scene joint whose child link the default candidates lie on (the joint that
+        ``estimate`` estimates); default :func:`default_joint`, the first joint that moved.
 
     Returns
     -------
@@ -724,8 +743,7 @@ def manipulate(scene: Scene | str, estimate: JointEstimate, amount: float, *,
     scene = load_scene(scene) if isinstance(scene, str) else scene
     if world is None:
         world = build_world(scene)
-    if not scene.joints:
-        raise ManipulationError(f"scene {scene.name!r} has no object joint: nothing to move")
+    target = default_joint(scene) if joint is None else scene.joint(joint)
     m, kin = world.model, world.kin
     messages: list[str] = []
 
@@ -745,7 +763,7 @@ def manipulate(scene: Scene | str, estimate: JointEstimate, amount: float, *,
         candidates = [GraspCandidate(np.asarray(grasp_point, float), n / np.linalg.norm(n))]
         ranked_from = "given grasp point"
     elif candidates is None:
-        link = scene.joints[0].child
+        link = target.child
         candidates = scene_grasp_candidates(world, data, link)
         ranked_from = f"surfaces of link {link!r}"
     else:
