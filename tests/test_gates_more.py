@@ -299,14 +299,18 @@ GATE_VIEWS = int(os.environ.get("ARTRECON_GATE_VIEWS", "18"))
 #:   no manipulation (the door is cabinet's, manipulated above).
 #: - pliers_panda: the other arm, the full evaluation (capture, reconstruct, register,
 #:   manipulate) with the Panda; known poses (the pliers' SfM is gated in test_gates.py).
-#: scissors is not gated in CI (budget): it misses the axis gate (2.45 deg) and segmentation
-#: (0.913) at 18 views, see the issue 10 report; python -m sim.evaluate scissors shows it.
+#: - scissors: two flat links 0.5-9 mm thick lying on the table (the table cut of
+#:   dense.object_region); known poses, as cabinet. One evaluation with its captures measured
+#:   74 s (load ~2 on 2 cores) and 145 s (load ~3.5): python -m sim.evaluate scissors --views 18
+#:   --use-poses. Its axis came out 1.54 deg (seed 0) and 0.43 deg (seed 1), under the 2 deg
+#:   gate; its segmentation 0.924 and 0.926, a known miss.
 GATE_SCENES_MORE = {
     "scraper_truck": ({}, "chain of two hinges"),
     "cabinet": ({"use_poses": True}, "hinge and slide in one object"),
     "barrett_hand": ({"use_poses": True}, "two coupled hinges, a fixed finger"),
     "cabinet_door_only": ({"use_poses": True, "manipulate": False}, "static drawer"),
     "pliers_panda": ({"use_poses": True}, "the Panda arm"),
+    "scissors": ({"use_poses": True}, "flat links on the table"),
 }
 
 #: scene -> moving joints (the gates are per joint, so a report names the one that missed).
@@ -316,6 +320,7 @@ GATE_JOINTS = {
     "barrett_hand": ("finger1_spread", "finger2_spread"),
     "cabinet_door_only": ("door_hinge",),
     "pliers_panda": ("pliers_hinge",),
+    "scissors": ("scissors_hinge",),
 }
 
 #: Known misses, measured at 18 views per ring, seed 0: {(scene, gate): reason}. Strict: the
@@ -326,6 +331,12 @@ KNOWN_MISSES: dict[tuple[str, str], str] = {
                                  "bottom by the shelf take a neighbour's link; both joints pass",
     ("pliers_panda", "segmentation"): "measured 0.922 < 0.95 (the pliers' own miss, 0.929 in "
                                       "tests/test_gates.py; the joint passes)",
+    ("scissors", "segmentation"): "measured 0.924 < 0.95 with known poses: 332 of the fixed "
+                                  "half's 1339 scored points take the moving link and 175 of "
+                                  "5342 the other way, near the pivot (median 36 mm from the "
+                                  "axis, 53 mm for all points) and low (the lower blade) where "
+                                  "the two thin halves overlap; the joint passes (axis 1.54 deg, "
+                                  "position 0.1 mm, state 0.18 deg), manipulation 29.6/30.2 deg",
 }
 
 _RESULTS: dict[str, dict] = {}
