@@ -14,7 +14,11 @@ method's fixed 1000-hypothesis loop:
   level (so chance outliers do not bias it); after the first link the common scale is fixed;
 - at the end every match is re-assigned to the link that explains it best (sequential extraction
   lets an early link steal matches near a joint), links are refitted jointly with one common
-  similarity scale, and links smaller than the minimum size are dissolved into outliers (-1).
+  similarity scale, and links smaller than the minimum size are dissolved into outliers (-1);
+- the whole search runs `restarts` times from independent draws and the run that explains the
+  matches best is kept (:func:`select_run`): which borderline matches one run admits decides
+  the transform of a link whose matches barely constrain it (a long, thin link: the roll about
+  its length), and through it the joint axis.
 
 Thresholds are relative to the scene size (`artrecon.tolerances`).
 """
@@ -76,6 +80,13 @@ class SegmentationConfig:
     """Stop after this many links."""
     min_links: int = 2
     """Fewer links raise SingleBodyError / NoMotionError (set 1 to accept a single rigid body)."""
+    restarts: int = 8
+    """Independent sequential-RANSAC runs (seeded from ``seed``); the one kept explains the matches
+    best (see :func:`select_run`). A single run's links hinge on which borderline matches its draws
+    admit: on the pliers, one match of 69 on the moving half moved the axis by 1.8 deg."""
+    selection_factor: float = 2.0
+    """The runs are compared by their residuals truncated at this x the runs' median member
+    residual (tight: among equally large link sets, the one that fits its matches best)."""
 
 
 @dataclass
@@ -315,7 +326,6 @@ def segment_links(
     """
     pa, pb = _validate(points_a, points_b)
     n = len(pa)
-    rng = np.random.default_rng(seed)
     size_a = tol.scene_size(pa)
     size_b = tol.scene_size(pb)
     if size_a <= 0 or size_b <= 0:
@@ -327,29 +337,11 @@ def segment_links(
     floor = tol.ADAPTIVE_THRESHOLD_FLOOR * size_b
     min_size = max(config.min_link_points, math.ceil(config.min_link_fraction * n), 3)
 
-    links: list[np.ndarray] = []
-    scale: float | None = None
-    hypotheses: list[int] = []
-    remaining = np.arange(n)
-    while len(remaining) >= min_size and len(links) < config.max_links:
-        best, drawn = _ransac_round(
-            pa[remaining], pb[remaining], thr, size_a, scale, min_size, rng, config
-        )
-        hypotheses.append(drawn)
-        if best is None:
-            break
-        transform, mask, _ = _refine(
-            pa[remaining], pb[remaining], best, thr, floor, scale, config
-        )
-        if mask.sum() < min_size:
-            break
-        if scale is None and config.shared_scale:
-            scale = transform.scale
-        links.append(remaining[mask])
-        log.debug("link %d: %d matches, %d hypotheses", len(links) - 1, mask.sum(), drawn)
-        remaining = remaining[~mask]
-
-    labels, transforms, thresholds, rms = _reassign(pa, pb, links, thr, floor, min_size, config)
+    runs = [_sequential_ransac(pa, pb, thr, floor, size_a, min_size,
+                               np.random.default_rng(seed if r == 0 else [seed, r]), config)
+            for r in range(max(1, config.restarts))]
+    labels, transforms, thresholds, rms, hypotheses = runs[select_run(runs, pa, pb, floor,
+                                                                      config)]
     seg = Segmentation(
         labels=labels,
         transforms=transforms,
@@ -417,6 +409,63 @@ def _reassign(pa, pb, links, thr, floor, min_size, config):
         res_all = np.linalg.norm(t.apply(pa) - pb, axis=1)
         thresholds.append(_link_threshold(res_all, labels == k, thr, floor, config))
     return labels, transforms, thresholds, rms
+
+
+def _sequential_ransac(pa, pb, thr, floor, size_a, min_size, rng, config):
+    """One run: links found one after another, then every match given to its best link.
+    Returns (labels, transforms, thresholds, rms, hypotheses)."""
+    n = len(pa)
+    links: list[np.ndarray] = []
+    scale: float | None = None
+    hypotheses: list[int] = []
+    remaining = np.arange(n)
+    while len(remaining) >= min_size and len(links) < config.max_links:
+        best, drawn = _ransac_round(
+            pa[remaining], pb[remaining], thr, size_a, scale, min_size, rng, config
+        )
+        hypotheses.append(drawn)
+        if best is None:
+            break
+        transform, mask, _ = _refine(
+            pa[remaining], pb[remaining], best, thr, floor, scale, config
+        )
+        if mask.sum() < min_size:
+            break
+        if scale is None and config.shared_scale:
+            scale = transform.scale
+        links.append(remaining[mask])
+        log.debug("link %d: %d matches, %d hypotheses", len(links) - 1, mask.sum(), drawn)
+        remaining = remaining[~mask]
+    return (*_reassign(pa, pb, links, thr, floor, min_size, config), hypotheses)
+
+
+def select_run(runs, pa, pb, floor: float, config: SegmentationConfig) -> int:
+    """Index of the run that explains the matches best.
+
+    Among the runs that found the most frequent number of links (ties: fewer links; a run that
+    split off a sliver of noise, or missed a link, is the odd one out), the one with the least
+    truncated squared residual sum(min(r_i, tau)^2), r_i the match's residual under its nearest
+    link's transform and tau = ``selection_factor`` x the median member residual over those runs:
+    an MSAC score at the matches' own noise level, so that the run whose links fit their members
+    tightly wins over one that admitted borderline matches. Ties: the earliest run.
+    """
+    counts = np.array([len(r[1]) for r in runs])
+    values, freq = np.unique(counts, return_counts=True)
+    modal = values[np.lexsort((values, -freq))[0]]
+    cands = [i for i in range(len(runs)) if counts[i] == modal]
+    if len(cands) == 1 or modal == 0:
+        return cands[0]
+    res = {}
+    for i in cands:
+        res[i] = np.min(np.stack([np.linalg.norm(t.apply(pa) - pb, axis=1)
+                                  for t in runs[i][1]]), axis=0)
+    members = [np.median(res[i][runs[i][0] >= 0]) for i in cands if np.any(runs[i][0] >= 0)]
+    tau = max(config.selection_factor * float(np.median(members)), floor) if members else floor
+    costs = [float(np.sum(np.minimum(res[i], tau) ** 2)) for i in cands]
+    best = cands[int(np.argmin(costs))]
+    log.debug("segment_links: %d runs, %d with %d links; costs %s (tau %.3g); kept run %d",
+              len(runs), len(cands), modal, np.round(costs, 6).tolist(), tau, best)
+    return best
 
 
 def _spans_plane(p: np.ndarray) -> bool:

@@ -112,3 +112,30 @@ def test_shapes_validated():
         segment_links(np.zeros((10, 2)), np.zeros((10, 2)))
     with pytest.raises(ValueError, match="shape of points_a"):
         segment_links(np.zeros((10, 3)), np.zeros((9, 3)))
+
+
+def _run(obj, transforms, labels=None):
+    """A run tuple as select_run takes it: (labels, transforms, thresholds, rms, hypotheses)."""
+    labels = obj.labels.copy() if labels is None else labels
+    return labels, transforms, [0.01] * len(transforms), [0.0] * len(transforms), [100]
+
+
+def test_restarts_keep_the_run_that_fits_its_links_best():
+    from artrecon.segment import select_run
+
+    obj = make_object(21, "pair", ("revolute",), 80, 0.002, 0.2)
+    true = list(obj.link_motions)
+    tilt = Similarity(Rotation.from_rotvec([0.0, np.deg2rad(1.5), 0.0]).as_matrix(), [0, 0, 0], 1)
+    tilted = [true[0], true[1] @ tilt]  # a run whose second link admitted a bad match or two
+    # a run that split off a sliver (an extra link of 6 matches) explains a few more matches,
+    # but it is the odd one out: runs are compared among the most frequent link count
+    sliver_labels = obj.labels.copy()
+    sliver_labels[np.flatnonzero(obj.labels < 0)[:6]] = 2
+    sliver = _run(obj, [*true, Similarity()], sliver_labels)
+    runs = [sliver, _run(obj, tilted), _run(obj, true)]
+    cfg = SegmentationConfig()
+    assert select_run(runs, obj.points_a, obj.points_b, 1e-6, cfg) == 2
+    # one run of each link count: the fewer links win, however well the sliver fits
+    assert select_run(runs[:2], obj.points_a, obj.points_b, 1e-6, cfg) == 1
+    assert select_run([runs[1]], obj.points_a, obj.points_b, 1e-6, cfg) == 0
+
