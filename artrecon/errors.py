@@ -38,3 +38,19 @@ class WeakEvidenceError(ReconstructionError):
     def __init__(self, message: str, records: list | None = None):
         super().__init__(message)
         self.records = list(records or [])
+
+
+class PoseMismatchError(ReconstructionError):
+    """The given camera poses (e.g. the arm's forward kinematics) do not agree with the images:
+    the images' verified feature matches contradict the epipolar geometry the poses predict, and
+    few of them triangulate. Refused rather than reconstructed from wrong cameras (a wrong model).
+
+    Attributes
+    ----------
+    agreement : dict
+        The measured figures (:func:`artrecon.sfm.pose_agreement`).
+    """
+
+    def __init__(self, message: str, agreement: dict | None = None):
+        super().__init__(message)
+        self.agreement = dict(agreement or {})

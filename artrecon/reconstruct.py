@@ -45,7 +45,12 @@ from artrecon import __version__
 from artrecon.assign import AssignConfig, assign_dense_to_links, views_from_sfm
 from artrecon.confidence import ConfidenceConfig, assess_joints, explain_segmentation_failure
 from artrecon.dense import DenseConfig, RegionConfig, dense_points, object_region
-from artrecon.errors import DegenerateError, InputError, ReconstructionError
+from artrecon.errors import (
+    DegenerateError,
+    InputError,
+    ReconstructionError,
+    WeakEvidenceError,
+)
 from artrecon.features import MatchConfig, match_configurations
 from artrecon.io import (
     Intrinsics,
@@ -203,6 +208,35 @@ def merge_equivalent_links(points_a: np.ndarray, points_b: np.ndarray,
                         hypotheses=list(seg.hypotheses), rms=rms)
 
 
+def blame_poses(err: Exception, sfms: dict, config: SfMConfig) -> Exception:
+    """``err`` (a segmentation or joint-evidence failure) with the given camera poses named as its
+    likely cause, when they were given and agree with the images worse than
+    ``config.suspect_pose_epipolar_px`` (though well enough to pass the pose check); else ``err``.
+
+    Slightly wrong poses (encoder noise, a camera mount error) put each configuration's points
+    in slightly different wrong places, so the matches across configurations stop moving
+    together, and segmentation blames the matches ("chance pairings", "too few inliers").
+    """
+    figures = {k: s.pose_agreement["epipolar_median_px"] for k, s in sfms.items()
+               if s.pose_agreement and s.pose_agreement.get("epipolar_median_px") is not None}
+    if not any(v > config.suspect_pose_epipolar_px for v in figures.values()):
+        return err
+    note = (" Likely cause: the given camera poses. They passed the pose check but agree with the "
+            "images only to a median " + ", ".join(f"{v:.2f} px ({k.upper()})"
+                                                   for k, v in sorted(figures.items()))
+            + " from the epipolar lines they predict (exact poses: ~0.1 px); such poses "
+            "(a hand-eye / camera mount calibration error, arm encoder errors) put the points of "
+            "the two configurations in differently wrong places, so their matches no longer move "
+            "together. Run without the poses (without --use-poses) so SfM recovers the cameras "
+            "from the images, or recalibrate the camera mount and the arm.")
+    if isinstance(err, WeakEvidenceError):
+        return WeakEvidenceError(str(err) + note, err.records)
+    try:
+        return type(err)(str(err) + note)
+    except TypeError:  # an error class with another constructor
+        return ReconstructionError(str(err) + note)
+
+
 def _rms(T, pa: np.ndarray, pb: np.ndarray) -> float:
     if len(pa) == 0:
         return 0.0
@@ -322,6 +356,9 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
         A stage failed (the message says which and what to try). WeakEvidenceError (a
         ReconstructionError): a joint's evidence is too weak to give its axis
         (artrecon.confidence; each joint of a returned model has its ``confidence`` record).
+        PoseMismatchError (a ReconstructionError): the given ``poses`` disagree with the images
+        (artrecon.sfm.check_pose_agreement; a returned model records the figures in
+        ``metadata["pose_agreement"]``).
     """
     t_all = time.perf_counter()
     # One value for both sets, or a pair (a (3, 3) nested list has 3 rows, never 2).
@@ -410,8 +447,9 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
         seg = merge_equivalent_links(matches.points_a, matches.points_b, seg)
         tree = build_kinematic_tree(matches.points_a, seg, config.joints)
     except DegenerateError as exc:  # fewer than two links: one moving body, or other objects?
-        raise explain_segmentation_failure(exc, matches.points_a, matches.points_b,
-                                           config.segmentation, seed) from exc
+        raise blame_poses(explain_segmentation_failure(exc, matches.points_a, matches.points_b,
+                                                       config.segmentation, seed),
+                          sfms, config.sfm) from exc
     root = static_link(seg, background.points_a, background.points_b)
     if root is None:
         log.warning("the background does not show which link is the base; the largest link "
@@ -420,8 +458,11 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
         tree = reroot(tree, root)
     joints = estimate_joints(matches.points_a, matches.points_b, seg, config.joints, tree=tree)
     # Evidence per joint (Joint.confidence); raises WeakEvidenceError rather than a wrong axis.
-    confidence = assess_joints(matches.points_a, matches.points_b, seg, joints, config.joints,
-                               config.confidence, seed)
+    try:
+        confidence = assess_joints(matches.points_a, matches.points_b, seg, joints, config.joints,
+                                   config.confidence, seed)
+    except WeakEvidenceError as exc:
+        raise blame_poses(exc, sfms, config.sfm) from exc
     timings["segment_joints"] = time.perf_counter() - t
     np.savez(work / "matches.npz", points_a=matches.points_a, points_b=matches.points_b,
              point3D_ids_a=matches.point3D_ids_a, point3D_ids_b=matches.point3D_ids_b,
@@ -453,6 +494,9 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
             "artrecon_version": __version__, "seed": seed,
             "images_a": str(set_a.root), "images_b": str(set_b.root),
             "camera_poses": "given (known-pose triangulation)" if metric else "SfM from images",
+            # given poses against the images, per configuration (artrecon.sfm.pose_agreement)
+            "pose_agreement": {k: s.pose_agreement for k, s in sfms.items()
+                               if s.pose_agreement is not None} or None,
             "model_frame": "world frame of configuration A's camera poses (metres)" if metric
             else "configuration A's SfM frame (arbitrary scale)",
             "registered_images": {k: s.reconstruction.num_reg_images() for k, s in sfms.items()},

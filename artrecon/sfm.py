@@ -16,7 +16,11 @@ Two modes:
 
 * default, the method's: incremental SfM from the images alone (pose search).
 * ``poses`` given (the arm's forward kinematics): the poses are held fixed, points are triangulated
-  and refined by bundle adjustment; no pose search. Much faster, and metric.
+  and refined by bundle adjustment; no pose search. Much faster, and metric. The poses are then
+  checked against the images (:func:`pose_agreement`: epipolar distance of the verified matches,
+  share that triangulates); poses that disagree, as a camera mount (hand-eye) error or encoder
+  errors make them, are refused with a :class:`~artrecon.errors.PoseMismatchError`: wrong
+  cameras would give a wrong model without any error.
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
-from artrecon.errors import ReconstructionError
+from artrecon.errors import PoseMismatchError, ReconstructionError
 from artrecon.io import ImageSet, Intrinsics
 
 log = logging.getLogger(__name__)
@@ -68,6 +72,30 @@ class SfMConfig:
     """When reference poses exist (cameras.json) but SfM ran from the images, the SfM camera
     centres, aligned by a similarity, must match them within this fraction of the cameras' spread
     (a folded ring of cameras is far off; a good model is ~0.1% off)."""
+    max_pose_epipolar_px: float = 0.45
+    """Given camera poses (known-pose triangulation) are refused when the images' verified
+    two-view matches of either configuration lie further than this (median Sampson distance,
+    pixels) from the epipolar lines the poses predict (:func:`pose_agreement`). The known-pose
+    path needs poses about as exact as the images: measured with ``python -m sim.evaluate pliers
+    --views 18 --use-poses`` (640x480, 60 images per set) and sim.perturb's errors of the arm's
+    poses (figures for A / B): exact poses 0.13 / 0.13 px (0.09-0.14 on cabinet, barrett_hand,
+    scissors, pliers_panda); good models at 0.39 / 0.36 px (encoder noise 0.02 deg, axis 0.6 deg)
+    and 0.50 / 0.51 (1 mm / 0.2 deg mount error, 0.7 deg); wrong axes without any error at
+    0.51 / 0.46 (2 mm / 0.4 deg, seed 1: 3.5 deg), 0.89 / 0.79 (encoder 0.05 deg: 3.2 deg) and
+    1.32 / 1.39 (5 mm / 1 deg, seed 2: 7.4 deg), while 5 mm / 1 deg gave good axes at seeds 0
+    and 1 (2.2 and 1.1 px): from ~0.5 px on, the answer is a coin toss. 0.45 px refuses every
+    wrong answer measured and keeps the 0.39 px one (the 1 mm mount error is refused too)."""
+    min_pose_triangulated_share: float = 0.8
+    """... or when fewer than this share of those matches end in one triangulated 3D point
+    (COLMAP keeps a track only within 4 px of every view): a second, coarser sign of the same.
+    Same runs: 0.95-0.97 with exact poses and up to 0.5 px; 0.92-0.94 at 0.5-0.9 px; 0.44-0.69
+    at 1-2.3 px; below 0.4 beyond (encoder noise 0.1 deg and more, mount errors of 10 mm and
+    more)."""
+    suspect_pose_epipolar_px: float = 0.3
+    """Given poses that pass the check but agree with the images worse than this (median
+    epipolar distance, pixels; 2.3 x the 0.13 px of exact poses) are named as the likely cause
+    when segmentation or a joint's evidence fails later
+    (:func:`artrecon.reconstruct.blame_poses`)."""
 
 
 def camera_poses(reconstruction) -> dict[str, np.ndarray]:
@@ -99,6 +127,8 @@ class SfMResult:
         Images in the set (registered or not).
     timings : dict of str to float
         Seconds per step.
+    pose_agreement : dict or None
+        With given camera poses: how well they agree with the images (:func:`pose_agreement`).
     """
 
     reconstruction: pycolmap.Reconstruction
@@ -107,6 +137,7 @@ class SfMResult:
     model_dir: Path
     num_images: int
     timings: dict = field(default_factory=dict)
+    pose_agreement: dict | None = None
 
     def T_world_camera(self) -> dict[str, np.ndarray]:
         """Pose (4, 4) per registered image name, OpenCV convention, SfM world frame."""
@@ -334,10 +365,129 @@ def _triangulate_known_poses(image_set: ImageSet, database_path: Path, out_dir: 
                                       clear_points=True, options=opts, refine_intrinsics=False)
     shutil.rmtree(work, ignore_errors=True)
     if rec.num_points3D() == 0:
-        raise ReconstructionError(f"triangulation with known poses on {image_set.image_dir} gave "
-                                  "no points: check that the poses belong to these images "
-                                  "(T_world_camera, OpenCV convention) and the intrinsics")
+        raise PoseMismatchError(
+            f"triangulation with the given camera poses on {image_set.image_dir} gave no points: "
+            "the poses do not agree with the images. Check that the poses belong to these images "
+            "(T_world_camera, OpenCV convention) and the intrinsics, or run without the poses "
+            "(without --use-poses) so SfM recovers the cameras from the images.")
     return rec
+
+
+def pose_agreement(reconstruction: pycolmap.Reconstruction, database_path: Path) -> dict:
+    """How well a reconstruction's camera poses agree with the images' own two-view geometry.
+
+    The verified matches of each image pair (COLMAP's two-view geometries, RANSAC inliers of the
+    images alone) must lie on the epipolar lines that the poses predict; with poses fixed to wrong
+    values they do not, and COLMAP's triangulation (which keeps a track only within a few pixels
+    of every view) drops them. Both are measured; neither needs the poses to be right.
+
+    Parameters
+    ----------
+    reconstruction : pycolmap.Reconstruction
+        Images with poses (held fixed) and triangulated points.
+    database_path : Path
+        The COLMAP database the reconstruction was triangulated from (keypoints, two-view
+        geometries).
+
+    Returns
+    -------
+    dict
+        ``epipolar_median_px``, ``epipolar_p90_px``: Sampson distance (pixels) of the verified
+        matches to the poses' epipolar geometry; ``triangulated_share``: share of those matches
+        whose two keypoints belong to one triangulated 3D point; ``reprojection_mean_px`` of the
+        kept points; ``pairs``, ``matches`` counted.
+    """
+    rec = reconstruction
+    posed = {i for i in rec.reg_image_ids() if rec.images[i].has_pose}
+    point_of: dict[int, np.ndarray] = {}
+    for i in posed:
+        point_of[i] = np.full(rec.images[i].num_points2D(), -1, dtype=np.int64)
+    for pid, point in rec.points3D.items():
+        for el in point.track.elements:
+            if el.image_id in point_of:
+                point_of[el.image_id][el.point2D_idx] = pid
+    errors, together = [], []
+    pairs = 0
+    with pycolmap.Database.open(database_path) as db:
+        keypoints: dict[int, np.ndarray] = {}
+
+        def rays(image_id: int, idx: np.ndarray) -> np.ndarray:
+            if image_id not in keypoints:
+                cam = rec.cameras[rec.images[image_id].camera_id]
+                xy = np.asarray(db.read_keypoints(image_id), dtype=float)[:, :2]
+                keypoints[image_id] = np.c_[cam.cam_from_img(xy), np.ones(len(xy))]
+            return keypoints[image_id][idx]
+
+        pair_ids, geometries = db.read_two_view_geometries()
+        for pair_id, geometry in zip(pair_ids, geometries, strict=True):
+            m = np.asarray(geometry.inlier_matches, dtype=np.int64).reshape(-1, 2)
+            i1, i2 = pycolmap.pair_id_to_image_pair(pair_id)
+            if len(m) == 0 or i1 not in posed or i2 not in posed:
+                continue
+            T1 = rec.images[i1].cam_from_world().matrix()
+            T2 = rec.images[i2].cam_from_world().matrix()
+            R = T2[:, :3] @ T1[:, :3].T  # cam2_from_cam1
+            t = T2[:, 3] - R @ T1[:, 3]
+            if np.linalg.norm(t) < 1e-12:  # no baseline: no epipolar constraint
+                continue
+            t = t / np.linalg.norm(t)
+            E = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ R
+            x1, x2 = rays(i1, m[:, 0]), rays(i2, m[:, 1])
+            Ex1, Etx2 = x1 @ E.T, x2 @ E
+            num = np.sum(x2 * Ex1, axis=1) ** 2
+            den = Ex1[:, 0] ** 2 + Ex1[:, 1] ** 2 + Etx2[:, 0] ** 2 + Etx2[:, 1] ** 2
+            f = 0.5 * (rec.cameras[rec.images[i1].camera_id].mean_focal_length()
+                       + rec.cameras[rec.images[i2].camera_id].mean_focal_length())
+            errors.append(f * np.sqrt(num / np.maximum(den, 1e-300)))
+            p1, p2 = point_of[i1][m[:, 0]], point_of[i2][m[:, 1]]
+            together.append((p1 >= 0) & (p1 == p2))
+            pairs += 1
+    if not errors:
+        return {"pairs": 0, "matches": 0, "epipolar_median_px": None, "epipolar_p90_px": None,
+                "triangulated_share": None,
+                "reprojection_mean_px": float(rec.compute_mean_reprojection_error())}
+    err = np.concatenate(errors)
+    return {"pairs": pairs, "matches": int(len(err)),
+            "epipolar_median_px": float(np.median(err)),
+            "epipolar_p90_px": float(np.percentile(err, 90)),
+            "triangulated_share": float(np.concatenate(together).mean()),
+            "reprojection_mean_px": float(rec.compute_mean_reprojection_error())}
+
+
+def check_pose_agreement(agreement: dict, config: SfMConfig, where) -> None:
+    """Refuse given camera poses that disagree with the images (:func:`pose_agreement`).
+
+    Raises
+    ------
+    PoseMismatchError
+        The median epipolar distance is above ``config.max_pose_epipolar_px`` or the share of
+        matches that triangulate is below ``config.min_pose_triangulated_share``. The message
+        gives the figures, the likely cause and what to do.
+    """
+    epi, share = agreement.get("epipolar_median_px"), agreement.get("triangulated_share")
+    if epi is None:
+        raise PoseMismatchError(
+            f"{where}: no image pair with verified matches between two posed images, so the given "
+            "camera poses cannot be checked against the images. Check that the poses belong to "
+            "these images, or run without the poses (without --use-poses) so SfM recovers the "
+            "cameras from the images.", agreement)
+    bad_epi = epi > config.max_pose_epipolar_px
+    bad_share = share < config.min_pose_triangulated_share
+    if not (bad_epi or bad_share):
+        return
+    raise PoseMismatchError(
+        f"{where}: the given camera poses do not agree with the images, refused rather than "
+        f"reconstructed from wrong cameras: the images' verified feature matches "
+        f"({agreement['matches']} in {agreement['pairs']} image pairs) lie a median "
+        f"{epi:.2f} px from the epipolar lines the poses predict (limit "
+        f"{config.max_pose_epipolar_px:g} px; exact poses give ~0.1 px), and "
+        f"{100 * share:.0f}% of them triangulate into a 3D point (need "
+        f"{100 * config.min_pose_triangulated_share:.0f}%; exact poses ~95%). Likely cause: a "
+        "hand-eye (camera mount) calibration error or arm encoder errors, or poses that belong "
+        "to other images or another convention (T_world_camera, OpenCV). What to do: recalibrate "
+        "the camera mount (hand-eye) and the arm, or run without the poses (without "
+        "--use-poses): SfM then recovers the cameras from the images, and the robot's camera "
+        "positions only give the scale and the world frame.", agreement)
 
 
 def run_sfm(image_set: ImageSet, out_dir: str | Path, intrinsics: Intrinsics | None = None,
@@ -368,6 +518,8 @@ def run_sfm(image_set: ImageSet, out_dir: str | Path, intrinsics: Intrinsics | N
     ------
     ReconstructionError
         Too few images registered, or the images split into several models.
+    PoseMismatchError
+        Given ``poses`` that disagree with the images (:func:`check_pose_agreement`).
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -397,13 +549,24 @@ def run_sfm(image_set: ImageSet, out_dir: str | Path, intrinsics: Intrinsics | N
             rec = _triangulate_known_poses(image_set, db_path, out_dir, intrinsics, poses, config,
                                            seed)
         timings["map"] = time.perf_counter() - t
+    agreement = None
+    if poses is not None:
+        t = time.perf_counter()
+        agreement = pose_agreement(rec, db_path)
+        timings["pose_check"] = time.perf_counter() - t
+        log.info("%s: given camera poses vs the images: verified matches %.2f px (median) from "
+                 "the poses' epipolar lines, %.0f%% triangulated", image_set.root,
+                 agreement["epipolar_median_px"] or float("nan"),
+                 100 * (agreement["triangulated_share"] or 0.0))
+        check_pose_agreement(agreement, config, f"camera poses of {image_set.image_dir}")
     model_dir = out_dir / "sparse" / "0"
     model_dir.mkdir(parents=True, exist_ok=True)
     rec.write(model_dir)
     log.info("%s: %d/%d images registered, %d points, reprojection error %.2f px",
              image_set.root, rec.num_reg_images(), len(image_set.names), rec.num_points3D(),
              rec.compute_mean_reprojection_error())
-    return SfMResult(rec, db_path, image_set.image_dir, model_dir, len(image_set.names), timings)
+    return SfMResult(rec, db_path, image_set.image_dir, model_dir, len(image_set.names), timings,
+                     agreement)
 
 
 def layout_error(result: SfMResult, poses: dict[str, np.ndarray]) -> float:
