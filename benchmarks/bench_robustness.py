@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -125,8 +126,40 @@ def summarise(res: dict, gates: dict) -> dict:
     # breaking = a joint gate fails or the run fails/refuses; the segmentation gate is reported
     # beside it (pliers at 18 views misses it unperturbed, so it cannot show a break)
     row["passes"] = bool(not row["error"] and row["joint_passes"])
-    row["refused"] = bool(row["error"] and ("Weak" in row["error"] or "refus" in row["error"]))
+    row["error_class"] = error_class(row["error"])
+    row["refused"] = bool(row["error"] and is_refusal(row["error_class"]))
+    row["outcome"] = outcome(row)
     return row
+
+
+def error_class(error: str | None) -> str | None:
+    """The exception class name in an evaluation's error (``"<stage>: <Class>: <message>"``)."""
+    m = re.match(r"\s*[\w ]+: (\w+): ", error or "")
+    return m.group(1) if m else None
+
+
+def is_refusal(name: str | None) -> bool:
+    """Whether an error of class ``name`` is artrecon saying on purpose why it gives no model
+    (an :class:`artrecon.errors.ArtreconError`: the message names what is wrong and what to do),
+    as opposed to a crash (any other exception)."""
+    import artrecon.errors as errors
+
+    cls = getattr(errors, name or "", None)
+    return isinstance(cls, type) and issubclass(cls, errors.ArtreconError)
+
+
+#: How a run ended, in the words of the report.
+OUTCOMES = {"ok": "ok", "wrong": "WRONG answer (no error)", "refused": "refused (clear error)",
+            "crashed": "crashed"}
+
+
+def outcome(row: dict) -> str:
+    """'ok' (every joint gate passes), 'wrong' (a model came out but a gate fails: the silent
+    failure issue 9 forbids), 'refused' (artrecon raised one of its own errors, saying what is
+    wrong) or 'crashed' (any other error)."""
+    if row["error"]:
+        return "refused" if row["refused"] else "crashed"
+    return "ok" if row["passes"] else "wrong"
 
 
 # ---------------------------------------------------------------------------- pictures
@@ -136,9 +169,9 @@ def _text(img, s, org, scale=0.45, colour=(40, 40, 40), thick=1):
     cv2.putText(img, s, org, cv2.FONT_HERSHEY_SIMPLEX, scale, colour, thick, cv2.LINE_AA)
 
 
-def plot_panel(img, box, xs, ys, fails, gate, title, xlabel, ylabel):
+def plot_panel(img, box, xs, ys, fails, gate, title, xlabel, ylabel, refused=None):
     """A line chart in ``box`` (x0, y0, x1, y1) of ``img`` (BGR): values, the gate (dashed),
-    failed runs as red crosses at the top."""
+    runs without a value as crosses at the top: amber when refused (``refused``), red else."""
     x0, y0, x1, y1 = box
     px0, py0, px1, py1 = x0 + 60, y0 + 30, x1 - 15, y1 - 45
     cv2.rectangle(img, (px0, py0), (px1, py1), (120, 120, 120), 1)
@@ -168,11 +201,15 @@ def plot_panel(img, box, xs, ys, fails, gate, title, xlabel, ylabel):
     pts = [(X(x), Y(y)) for x, y, f in zip(xs, ys, fails, strict=True) if y is not None]
     for a, b in zip(pts, pts[1:], strict=False):
         cv2.line(img, a, b, (200, 90, 30), 2, cv2.LINE_AA)
-    for x, y, f in zip(xs, ys, fails, strict=True):
+    refused = refused or [False] * len(xs)
+    for x, y, f, r in zip(xs, ys, fails, refused, strict=True):
         if y is None:
             c = (X(x), py0 + 10)
-            cv2.line(img, (c[0] - 6, c[1] - 6), (c[0] + 6, c[1] + 6), (30, 30, 220), 2)
-            cv2.line(img, (c[0] - 6, c[1] + 6), (c[0] + 6, c[1] - 6), (30, 30, 220), 2)
+            cross = (0, 150, 240) if r else (30, 30, 220)
+            cv2.line(img, (c[0] - 6, c[1] - 6), (c[0] + 6, c[1] + 6), cross, 2)
+            cv2.line(img, (c[0] - 6, c[1] + 6), (c[0] + 6, c[1] - 6), cross, 2)
+            _text(img, "refused" if r else "crashed", (c[0] - 60 if X(x) > px1 - 70 else c[0] + 9,
+                                                       c[1] + 4), 0.36, cross)
             continue
         colour = (30, 30, 220) if f else (40, 170, 40)
         cv2.circle(img, (X(x), Y(y)), 5, colour, -1, cv2.LINE_AA)
@@ -187,13 +224,15 @@ def plot_sweep(path: Path, title: str, unit: str, xs, rows, gates):
     axis = [r["axis_angle_deg"] for r in rows]
     state = [r["state_error"] for r in rows]
     su = next((r["state_unit"] for r in rows if r["state_unit"]), "deg")
+    refused = [r["outcome"] == "refused" for r in rows]
     plot_panel(img, (0, 30, 450, 315), xs, axis, fails, gates["axis_angle_deg"],
-               "axis angle error", f"strength ({unit})", "deg")
+               "axis angle error", f"strength ({unit})", "deg", refused)
     plot_panel(img, (450, 30, 900, 315), xs, state, fails,
                gates["state_error_deg" if su == "deg" else "state_error_mm"],
-               "joint state error", f"strength ({unit})", su)
-    _text(img, "green: every joint gate passes; red dot: a gate fails; red cross at the top: "
-          "the run failed or refused", (10, 322), 0.38, (90, 90, 90))
+               "joint state error", f"strength ({unit})", su, refused)
+    _text(img, "green: every joint gate passes; red dot: a gate fails (wrong answer); cross at "
+          "the top: amber = refused with a clear error, red = crashed", (10, 322), 0.38,
+          (90, 90, 90))
     ok, buf = cv2.imencode(".png", img)
     path.write_bytes(buf.tobytes())
 
@@ -214,9 +253,13 @@ def write_report(out: Path, args, table: dict, gates: dict) -> None:
              f"{gates['axis_angle_deg']} deg, axis position {gates['axis_position_mm']} mm, "
              f"state {gates['state_error_deg']} deg / {gates['state_error_mm']} mm, segmentation "
              f"{gates['segmentation_accuracy']} (reported, not used for 'breaks'). Errors are of "
-             "the scene's first moving joint.",
+             "the scene's first moving joint. Outcome of a run: **ok** (every joint gate "
+             "passes), **WRONG answer** (a model came out, a gate fails, no error: what issue 9 "
+             "forbids), **refused** (artrecon raised one of its own errors, which says what is "
+             "wrong and what to do), **crashed** (any other error).",
              "", "## Where the method breaks", "",
-             "| perturbation | strengths run | breaks at | how |", "| --- | --- | --- | --- |"]
+             "| perturbation | strengths run | outcome per strength | breaks at | how |",
+             "| --- | --- | --- | --- | --- |"]
     for title, unit, xs, rows in table.values():
         brk = next(((x, r) for x, r in zip(xs, rows, strict=True) if not r["passes"]), None)
         if brk is None:
@@ -226,19 +269,20 @@ def write_report(out: Path, args, table: dict, gates: dict) -> None:
             k = xs.index(x)
             where = f"{x:g} {unit}" + (f" (last pass {xs[k - 1]:g})" if k else "")
             if r["error"]:
-                how = ("refused: " if r["refused"] else "failed: ") + r["error"][:120]
+                how = (f"{OUTCOMES[r['outcome']]}: " + r["error"][:160])
             else:
-                how = (f"gate fails: axis {_f(r['axis_angle_deg'])} deg, position "
+                how = (f"{OUTCOMES['wrong']}: axis {_f(r['axis_angle_deg'])} deg, position "
                        f"{_f(r['axis_position_mm'])} mm, state {_f(r['state_error'])} "
                        f"{r['state_unit'] or ''}, segmentation "
                        f"{_f(r['segmentation_accuracy'], 3)}")
-        lines.append(f"| {title} | {', '.join(f'{x:g}' for x in xs)} | {where} | {how} |")
+        per = ", ".join(f"{x:g}: {r['outcome']}" for x, r in zip(xs, rows, strict=True))
+        lines.append(f"| {title} | {', '.join(f'{x:g}' for x in xs)} | {per} | {where} | {how} |")
     lines += ["", "## Every run", ""]
     for name, (title, unit, xs, rows) in table.items():
         lines += [f"### {title}", "", f"![{name}]({name}.png)", "",
                   f"| strength ({unit}) | axis angle (deg) | axis position (mm) | state error | "
                   "segmentation | scale error (%) | camera position (mm) | matches (rejected) | "
-                  "passes | error |",
+                  "outcome | error |",
                   "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
         for x, r in zip(xs, rows, strict=True):
             lines.append(
@@ -247,7 +291,7 @@ def write_report(out: Path, args, table: dict, gates: dict) -> None:
                 f"{_f(r['segmentation_accuracy'], 3)} | {_f(r['scale_error_pct'])} | "
                 f"{_f(r['camera_position_error_mm'])} | "
                 f"{_f(r.get('matches'))} ({_f(r.get('match_outliers'))}) | "
-                f"{'yes' if r['passes'] else 'no'} | {(r['error'] or '')[:160]} |")
+                f"{OUTCOMES[r['outcome']]} | {(r['error'] or '')[:400]} |")
         lines.append("")
     (out / "robustness.md").write_text("\n".join(lines) + "\n")
     (out / "robustness.json").write_text(json.dumps(
