@@ -111,7 +111,8 @@ def summarise(res: dict, gates: dict) -> dict:
                    axis_position_mm=j.get("axis_position_mm"), state_error=j.get("state_error"),
                    state_unit=j.get("state_error_unit"), state_true=j.get("state_true"),
                    joint_passes=all(bool(x.get("passes")) for x in joints),
-                   estimated=j.get("estimated_joint") is not None)
+                   estimated=j.get("estimated_joint") is not None,
+                   type_true=j.get("type_true"), type_estimated=j.get("type_estimated"))
     ms = res.get("model_summary") or {}
     row["matches"] = ms.get("matches")
     row["match_outliers"] = ms.get("match_outliers")
@@ -129,7 +130,18 @@ def summarise(res: dict, gates: dict) -> dict:
     row["error_class"] = error_class(row["error"])
     row["refused"] = bool(row["error"] and is_refusal(row["error_class"]))
     row["outcome"] = outcome(row)
+    # given poses: how far the images' matches lie from the poses' epipolar lines (the worse
+    # configuration; a refusal names the configuration it stopped at)
+    m = re.search(r"median ([0-9.]+) px from the epipolar lines", row["error"] or "")
+    agree = [a.get("epipolar_median_px") for a in (ms.get("pose_agreement") or {}).values()]
+    agree = [a for a in agree if a is not None]
+    row["pose_epipolar_px"] = float(m.group(1)) if m else max(agree) if agree else None
     return row
+
+
+def short_paths(text: str) -> str:
+    """``text`` with every absolute path cut to its last part (run folders make errors long)."""
+    return re.sub(r"/(?:[^\s/:]+/)+([^\s/:]+)", r".../\1", text or "")
 
 
 def error_class(error: str | None) -> str | None:
@@ -202,14 +214,17 @@ def plot_panel(img, box, xs, ys, fails, gate, title, xlabel, ylabel, refused=Non
     for a, b in zip(pts, pts[1:], strict=False):
         cv2.line(img, a, b, (200, 90, 30), 2, cv2.LINE_AA)
     refused = refused or [False] * len(xs)
+    crosses = sorted(X(x) for x, y in zip(xs, ys, strict=True) if y is None)
     for x, y, f, r in zip(xs, ys, fails, refused, strict=True):
         if y is None:
             c = (X(x), py0 + 10)
             cross = (0, 150, 240) if r else (30, 30, 220)
             cv2.line(img, (c[0] - 6, c[1] - 6), (c[0] + 6, c[1] + 6), cross, 2)
             cv2.line(img, (c[0] - 6, c[1] + 6), (c[0] + 6, c[1] - 6), cross, 2)
-            _text(img, "refused" if r else "crashed", (c[0] - 60 if X(x) > px1 - 70 else c[0] + 9,
-                                                       c[1] + 4), 0.36, cross)
+            right = [u for u in crosses if u > c[0]]
+            if not right or right[0] - c[0] > 70:  # a label only where it fits
+                _text(img, "refused" if r else "crashed",
+                      (c[0] - 60 if c[0] > px1 - 70 else c[0] + 9, c[1] + 4), 0.36, cross)
             continue
         colour = (30, 30, 220) if f else (40, 170, 40)
         cv2.circle(img, (X(x), Y(y)), 5, colour, -1, cv2.LINE_AA)
@@ -245,6 +260,8 @@ def _f(v, d=2):
 
 
 def write_report(out: Path, args, table: dict, gates: dict) -> None:
+    from artrecon.sfm import SfMConfig
+
     lines = [f"# Robustness sweep: {args.scene}, {args.views} views per ring"
              f"{', FK camera poses (--use-poses)' if args.use_poses else ', SfM from images'}",
              "", f"Command: `python benchmarks/bench_robustness.py "
@@ -256,10 +273,13 @@ def write_report(out: Path, args, table: dict, gates: dict) -> None:
              "the scene's first moving joint. Outcome of a run: **ok** (every joint gate "
              "passes), **WRONG answer** (a model came out, a gate fails, no error: what issue 9 "
              "forbids), **refused** (artrecon raised one of its own errors, which says what is "
-             "wrong and what to do), **crashed** (any other error).",
+             "wrong and what to do), **crashed** (any other error). Pose check: with given "
+             "poses, the median distance (px) of the images' verified matches from the poses' "
+             "epipolar lines (artrecon.sfm.pose_agreement; refused above "
+             f"{SfMConfig().max_pose_epipolar_px:g} px).",
              "", "## Where the method breaks", "",
-             "| perturbation | strengths run | outcome per strength | breaks at | how |",
-             "| --- | --- | --- | --- | --- |"]
+             "| perturbation | strengths run | outcome per strength | breaks at | how | "
+             "first WRONG answer |", "| --- | --- | --- | --- | --- | --- |"]
     for title, unit, xs, rows in table.values():
         brk = next(((x, r) for x, r in zip(xs, rows, strict=True) if not r["passes"]), None)
         if brk is None:
@@ -269,29 +289,34 @@ def write_report(out: Path, args, table: dict, gates: dict) -> None:
             k = xs.index(x)
             where = f"{x:g} {unit}" + (f" (last pass {xs[k - 1]:g})" if k else "")
             if r["error"]:
-                how = (f"{OUTCOMES[r['outcome']]}: " + r["error"][:160])
+                how = (f"{OUTCOMES[r['outcome']]}: " + short_paths(r["error"])[:300])
             else:
-                how = (f"{OUTCOMES['wrong']}: axis {_f(r['axis_angle_deg'])} deg, position "
+                kind = ("" if r.get("type_estimated") == r.get("type_true") else
+                        f"{r.get('type_estimated') or 'no'} joint for a {r.get('type_true')} one, ")
+                how = (f"{OUTCOMES['wrong']}: {kind}axis {_f(r['axis_angle_deg'])} deg, position "
                        f"{_f(r['axis_position_mm'])} mm, state {_f(r['state_error'])} "
                        f"{r['state_unit'] or ''}, segmentation "
                        f"{_f(r['segmentation_accuracy'], 3)}")
         per = ", ".join(f"{x:g}: {r['outcome']}" for x, r in zip(xs, rows, strict=True))
-        lines.append(f"| {title} | {', '.join(f'{x:g}' for x in xs)} | {per} | {where} | {how} |")
+        wrong = next((x for x, r in zip(xs, rows, strict=True) if r["outcome"] == "wrong"), None)
+        wrong = "none" if wrong is None else f"{wrong:g} {unit}"
+        lines.append(f"| {title} | {', '.join(f'{x:g}' for x in xs)} | {per} | {where} | {how} | "
+                     f"{wrong} |")
     lines += ["", "## Every run", ""]
     for name, (title, unit, xs, rows) in table.items():
         lines += [f"### {title}", "", f"![{name}]({name}.png)", "",
                   f"| strength ({unit}) | axis angle (deg) | axis position (mm) | state error | "
-                  "segmentation | scale error (%) | camera position (mm) | matches (rejected) | "
-                  "outcome | error |",
-                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+                  "segmentation | scale error (%) | camera position (mm) | pose check (px) | "
+                  "matches (rejected) | outcome | error |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
         for x, r in zip(xs, rows, strict=True):
             lines.append(
                 f"| {x:g} | {_f(r['axis_angle_deg'])} | {_f(r['axis_position_mm'])} | "
                 f"{_f(r['state_error'])} {r['state_unit'] or ''} | "
                 f"{_f(r['segmentation_accuracy'], 3)} | {_f(r['scale_error_pct'])} | "
-                f"{_f(r['camera_position_error_mm'])} | "
+                f"{_f(r['camera_position_error_mm'])} | {_f(r.get('pose_epipolar_px'))} | "
                 f"{_f(r.get('matches'))} ({_f(r.get('match_outliers'))}) | "
-                f"{OUTCOMES[r['outcome']]} | {(r['error'] or '')[:400]} |")
+                f"{OUTCOMES[r['outcome']]} | {short_paths(r['error'])[:400]} |")
         lines.append("")
     (out / "robustness.md").write_text("\n".join(lines) + "\n")
     (out / "robustness.json").write_text(json.dumps(

@@ -705,7 +705,8 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
         result["model_summary"] = {"links": len(model.links), "joints": len(model.joints),
                                    **{k: model.metadata.get(k) for k in
                                       ("registered_images", "num_images", "sparse_points",
-                                       "dense_points", "matches", "match_outliers")}}
+                                       "dense_points", "matches", "match_outliers",
+                                       "pose_agreement")}}
 
         stage = "registration"
         t = time.perf_counter()
