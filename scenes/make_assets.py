@@ -181,7 +181,9 @@ def cylinder(center, radius: float, half_height: float, axis: str = "z",
 
 def pack(sizes_m: np.ndarray, texel: np.ndarray, width: int, height: int):
     """Shelf-pack rectangles (k, 2) metres at ``texel`` (k,) m/texel; offsets (k, 2) or None."""
-    px = np.ceil(sizes_m / texel[:, None]).astype(int) + 2 * PAD
+    # rounded before the ceiling: many sizes are whole numbers of texels, and the last bit of a
+    # division (which differs between machines' SIMD paths) must not add a texel on one machine
+    px = np.ceil(np.round(sizes_m / texel[:, None], 6)).astype(int) + 2 * PAD
     order = sorted(range(len(px)), key=lambda i: (-px[i, 1], -px[i, 0], i))
     offsets = np.zeros((len(px), 2), int)
     x = y = row_h = 0

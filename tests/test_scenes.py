@@ -510,6 +510,31 @@ def _load_make_assets():
     return module
 
 
+#: Textures may differ by one grey level in a handful of pixels between machines: OpenCV
+#: dispatches its cubic resize and anti-aliased drawing to the CPU's SIMD (AVX2 or AVX-512), and
+#: the rounding differs (4 of 3.1 M values of cabinet.png by 1 on an AMD EPYC). Anything more is a
+#: different texture.
+TEXTURE_MAX_DIFFERENCE = 1
+TEXTURE_MAX_DIFFERING_SHARE = 1e-4
+#: Mesh numbers are written with 6 decimals; a last-digit rounding difference between machines
+#: (numpy's SIMD trigonometry) is 1e-6 of a metre or of a texture coordinate.
+OBJ_MAX_DIFFERENCE = 1.5e-6
+
+
+def _obj_differences(new: str, old: str, name: str) -> None:
+    """Assert two OBJ texts have the same lines and keywords, numbers within OBJ_MAX_DIFFERENCE."""
+    a, b = new.splitlines(), old.splitlines()
+    assert len(a) == len(b), f"{name}: {len(a)} lines, committed {len(b)}"
+    for k, (la, lb) in enumerate(zip(a, b, strict=True)):
+        if la == lb:
+            continue
+        ta, tb = la.split(), lb.split()
+        assert len(ta) == len(tb) and ta[0] == tb[0] and ta[0] in ("v", "vt", "vn"), \
+            f"{name} line {k + 1}: {la!r} != {lb!r}"
+        diff = np.abs(np.array(ta[1:], float) - np.array(tb[1:], float)).max()
+        assert diff <= OBJ_MAX_DIFFERENCE, f"{name} line {k + 1}: {la!r} != {lb!r}"
+
+
 def test_make_assets_reproduces_the_committed_assets(tmp_path):
     make_assets = _load_make_assets()
     make_assets.generate(tmp_path)
@@ -518,10 +543,14 @@ def test_make_assets_reproduces_the_committed_assets(tmp_path):
     for p in sorted(tmp_path.iterdir()):
         committed = ASSETS / p.name
         if p.suffix == ".obj":
-            assert p.read_bytes() == committed.read_bytes(), f"{p.name} differs"
+            _obj_differences(p.read_text(), committed.read_text(), p.name)
         else:
-            np.testing.assert_array_equal(cv2.imread(str(p)), cv2.imread(str(committed)),
-                                          err_msg=f"{p.name} differs")
+            new, old = cv2.imread(str(p)), cv2.imread(str(committed))
+            assert new.shape == old.shape, f"{p.name}: {new.shape} != {old.shape}"
+            diff = np.abs(new.astype(int) - old.astype(int))
+            assert diff.max() <= TEXTURE_MAX_DIFFERENCE, f"{p.name} differs by {diff.max()}"
+            assert (diff > 0).mean() <= TEXTURE_MAX_DIFFERING_SHARE, \
+                f"{p.name}: {(diff > 0).mean():.2e} of its values differ"
 
 
 def test_assets_are_small():
