@@ -52,8 +52,8 @@ CONFIGS = ("a", "b")
 #: Fewest images a set may have: fewer cannot give a reconstruction from all sides.
 MIN_CAPTURED_VIEWS = 8
 
-#: Joint-space speed (rad/s) of the commanded motion between views: slow enough for the PUMA's
-#: servos to track without overshoot into the table.
+#: Peak joint-space speed (rad/s) of the commanded motion between views (a minimum-jerk profile
+#: along the straight joint-space line, with computed-torque feed-forward: see :class:`_Arm`).
 MOVE_SPEED = 1.0
 #: The arm has settled when its joint speeds are below this (rad/s) ...
 SETTLE_SPEED = 1e-3
@@ -166,8 +166,48 @@ def _as_list(T) -> list:
 
 
 # ------------------------------------------------------------------------------------ arm motion
+#: Peak of the minimum-jerk profile's speed, in units of (distance / duration).
+MIN_JERK_PEAK_SPEED = 1.875
+
+
+def min_jerk(tau: float) -> tuple[float, float, float]:
+    """Minimum-jerk time scaling at ``tau`` in [0, 1]: the share of the way ``s`` and its first
+    and second derivatives with respect to ``tau`` (zero speed and acceleration at both ends;
+    peak speed 1.875 at 0.5)."""
+    t = min(max(float(tau), 0.0), 1.0)
+    return (t ** 3 * (10.0 - 15.0 * t + 6.0 * t * t),
+            30.0 * t * t * (1.0 - 2.0 * t + t * t),
+            60.0 * t * (1.0 - 3.0 * t + 2.0 * t * t))
+
+
+def servo_gains(model: mujoco.MjModel, actuators) -> tuple[np.ndarray, np.ndarray]:
+    """``(kp, kv)`` : two (n,) float of position servos (``gainprm[0] = kp``,
+    ``biasprm = (0, -kp, -kv)``); raises ValueError for any other kind of actuator."""
+    actuators = np.asarray(actuators, int)
+    kp = model.actuator_gainprm[actuators, 0].copy()
+    kv = -model.actuator_biasprm[actuators, 2]
+    if np.any(kp <= 0) or np.any(np.abs(model.actuator_biasprm[actuators, 1] + kp) > 1e-9 * kp):
+        names = [model.actuator(int(a)).name for a in actuators]
+        raise ValueError(f"the arm's actuators {names} must be position servos (kp > 0, bias "
+                         "-kp q - kv qdot); check the robot's <position> actuators")
+    return kp, kv
+
+
 class _Arm:
-    """Moves the arm in MuJoCo with its position servos and watches what it touches."""
+    """Moves the arm in MuJoCo with its position servos and watches what it touches.
+
+    A move follows the straight joint-space line that the view planner checked
+    (:func:`sim.views.check_paths`), on a minimum-jerk profile. A position servo (force
+    ``kp (ctrl - q) - kv qdot``) fed only the reference lags it by ``(kv + damping) / kp`` times
+    the speed -- the rail's servo (1 Hz, for 110 kg m^2) by 0.3 s, the arm's by 0.04-0.08 s -- so
+    the rail trails the wrist and the executed path leaves the checked line (by 0.3 rad on the
+    rail at 1 rad/s, measured). The command therefore carries the torque the reference motion
+    needs (inverse dynamics at the reference position, speed and acceleration: inertia, the
+    coupling of the arm's motion into the rail, gravity, damping) plus the servo's own damping:
+    computed-torque feed-forward through the position servo,
+    ``ctrl = q_ref + (tau_ref + kv v_ref) / kp``. The arm also holds its targets without sag.
+    :attr:`max_path_deviation` records how far each joint strayed from the line.
+    """
 
     def __init__(self, model, data, kin):
         self.model, self.data, self.kin = model, data, kin
@@ -178,12 +218,41 @@ class _Arm:
         self.links = views.arm_link_bodies(model, kin)
         #: geoms of the arm links, to test every physics step's contacts cheaply
         self.arm_geom = np.isin(model.geom_bodyid, sorted(self.links))
+        self.kp, self.kv = servo_gains(model, self.aidx)
+        #: joints whose actuators already carry the gravity compensation of their bodies
+        #: (MuJoCo's actuatorgravcomp): that share of the inverse dynamics is not the servo's
+        self.actuator_gravcomp = model.jnt_actgravcomp[[
+            mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in kin.joint_names]]
+        #: scratch data for the inverse dynamics of the reference
+        self._inverse = mujoco.MjData(model)
+        #: the joint values the arm was last sent to (None: wherever it stands)
+        self.target: np.ndarray | None = None
+        #: largest distance (rad or m) of each joint from the planned line, over all moves
+        self.max_path_deviation = np.zeros(len(self.qidx))
+
+    def command(self, q_ref, v_ref=None, a_ref=None) -> np.ndarray:
+        """Servo targets that make the arm follow ``q_ref`` with speed ``v_ref`` and
+        acceleration ``a_ref`` (default 0: hold ``q_ref``) : (n,) float."""
+        inv = self._inverse
+        v_ref = np.zeros(len(self.qidx)) if v_ref is None else v_ref
+        inv.qpos[:] = self.data.qpos
+        inv.qpos[self.qidx] = q_ref
+        inv.qvel[:] = 0.0
+        inv.qvel[self.vidx] = v_ref
+        inv.qacc[:] = 0.0
+        if a_ref is not None:
+            inv.qacc[self.vidx] = a_ref
+        mujoco.mj_inverse(self.model, inv)
+        tau = inv.qfrc_inverse[self.vidx] - self.actuator_gravcomp * inv.qfrc_gravcomp[self.vidx]
+        return q_ref + (tau + self.kv * v_ref) / self.kp
 
     def place(self, q):
-        """Start the arm at ``q`` (the robot's initial pose)."""
+        """Start the arm at ``q`` (the robot's initial pose), at rest and held there."""
+        q = np.asarray(q, dtype=float)
         self.data.qpos[self.qidx] = q
         self.data.qvel[:] = 0.0
-        self.data.ctrl[self.aidx] = q
+        self.target = q.copy()
+        self.data.ctrl[self.aidx] = self.command(q)
         mujoco.mj_forward(self.model, self.data)
 
     def _step(self, hits: set[str]) -> None:
@@ -194,22 +263,33 @@ class _Arm:
             hits.update(views.arm_collisions(m, d, self.links))
 
     def move(self, q) -> list[str]:
-        """Drive to ``q`` on a straight joint-space line, then settle; returns the contacts of
-        the arm met at any physics step on the way."""
+        """Drive along the straight joint-space line from the last target to ``q``, then settle;
+        returns the contacts of the arm met at any physics step on the way."""
         m, d = self.model, self.data
         dt = m.opt.timestep
-        q0 = d.ctrl[self.aidx].copy()
-        steps = max(1, int(np.ceil(np.max(np.abs(q - q0)) / MOVE_SPEED / dt)))
+        q = np.asarray(q, dtype=float)
+        q0 = d.qpos[self.qidx].copy() if self.target is None else self.target
+        dq = q - q0
+        steps = max(1, int(np.ceil(MIN_JERK_PEAK_SPEED * float(np.max(np.abs(dq)))
+                                   / MOVE_SPEED / dt)))
+        duration = steps * dt
         hits: set[str] = set()
+        deviation = np.zeros(len(self.qidx))
         for i in range(1, steps + 1):
-            d.ctrl[self.aidx] = q0 + (q - q0) * (i / steps)
+            s, ds, dds = min_jerk(i / steps)
+            q_ref = q0 + s * dq
+            d.ctrl[self.aidx] = self.command(q_ref, ds / duration * dq, dds / duration ** 2 * dq)
             self._step(hits)
+            deviation = np.maximum(deviation, np.abs(d.qpos[self.qidx] - q_ref))
+        self.target = q.copy()
+        d.ctrl[self.aidx] = self.command(q)
         for _ in range(int(SETTLE_MAX_TIME / dt)):
             self._step(hits)
             if np.max(np.abs(d.qvel[self.vidx])) < SETTLE_SPEED:
                 break
         mujoco.mj_forward(m, d)
         hits.update(views.arm_collisions(m, d, self.links))
+        self.max_path_deviation = np.maximum(self.max_path_deviation, deviation)
         return sorted(hits)
 
     def measured_q(self) -> np.ndarray:
@@ -415,6 +495,8 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
                        "candidates_tried": r.candidates_tried} for r in plan.rings],
             "planned": len(plan.views), "captured": len(to_take),
             "free_camera_images": free, "unreachable": unreachable,
+            "max_path_deviation": dict(zip(kin.joint_names,
+                                           arm.max_path_deviation.tolist(), strict=True)),
         }
         truth = {
             "scene": sc.name, "config": config,

@@ -444,6 +444,19 @@ class ArmKinematics:
         """``q`` clipped to the joint limits."""
         return np.clip(self._q(q), self.lower, self.upper)
 
+    def nearest_equivalent(self, q, q_ref) -> np.ndarray:
+        """``q`` with each joint turned by whole turns to lie as near ``q_ref`` as its limits
+        allow: the same pose of every link (all joints are revolute), reached by a shorter move
+        from ``q_ref``. Matters for joints whose range exceeds a turn (the PUMA's wrist roll,
+        +-266 degrees). : (n,) float"""
+        q, ref = self._q(q).copy(), self._q(q_ref)
+        for i in range(self.nq):
+            turns = q[i] + 2.0 * np.pi * np.arange(-2, 3)
+            turns = turns[(turns >= self.lower[i]) & (turns <= self.upper[i])]
+            if len(turns):
+                q[i] = turns[np.argmin(np.abs(turns - ref[i]))]
+        return q
+
     def solve_ik(self, T_world_target, frame: str = "camera", q0=None, *,
                  position_only: bool = False, locked=(), max_iter: int = 300,
                  restarts: int = 8, seed: int = 0, damping: float = 1e-4) -> IKResult:

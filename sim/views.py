@@ -53,6 +53,16 @@ MIN_RING_DISTANCE = 0.25
 #: 0.02 rad moves a point 1 m from the joint by 2 cm, less than the links' thickness.
 PATH_CHECK_STEP = 0.02
 
+#: Clearance (m) the planned arm keeps from everything that is not the robot (object, table,
+#: floor) at every view and at every checked step of the moves between views. The servos follow
+#: the planned joint-space line within a few millimetres (sim.capture feeds each one its own lag
+#: forward), but a plan that merely avoided contact could pass a few millimetres from a thin
+#: part: scraper_truck's configuration B had a move 9.8 mm from the blade that the rail's lag
+#: (0.3 s behind the wrist) turned into a contact, and the capture failed. 1 cm is also a
+#: fifth of the 5 cm a joint step of :data:`PATH_CHECK_STEP` moves the wrist at most, the
+#: margin between two checked configurations.
+CLEARANCE_M = 0.01
+
 #: Step (share of the image) between the candidate fills of a ring, and (degrees) between its
 #: candidate elevations: 0.05 of fill is 2-4 cm of distance for the bundled objects, 2.5 degrees
 #: a quarter of the 10 degree view spacing.
@@ -340,8 +350,12 @@ def arm_link_bodies(model: mujoco.MjModel, kin: robot.ArmKinematics) -> set[int]
 
     Not the rail carriage and the arm's base on it: they ride on the floor by design.
     """
-    first = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, kin.joint_names[1])
-    root = int(model.jnt_bodyid[first])
+    return _bodies_moved_by(model, kin.joint_names[1])
+
+
+def _bodies_moved_by(model: mujoco.MjModel, joint: str) -> set[int]:
+    """The body of ``joint`` and every body below it."""
+    root = int(model.jnt_bodyid[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, joint)])
     out = set()
     for b in range(model.nbody):
         c = b
@@ -355,20 +369,66 @@ def arm_link_bodies(model: mujoco.MjModel, kin: robot.ArmKinematics) -> set[int]
 def arm_collisions(model: mujoco.MjModel, data: mujoco.MjData, links: set[int]) -> list[str]:
     """Contacts of the arm links with anything (table, object, floor, other links), after
     ``mj_forward``; as readable ``"geom1/geom2"`` strings."""
-    def name(g):
-        return (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g)
-                or f"geom{g}@{model.body(model.geom_bodyid[g]).name}")
-
     out = []
     for c in data.contact[: data.ncon]:
         g1, g2 = int(c.geom[0]), int(c.geom[1])
         if int(model.geom_bodyid[g1]) in links or int(model.geom_bodyid[g2]) in links:
-            out.append(f"{name(g1)}/{name(g2)}")
+            out.append(f"{_geom_name(model, g1)}/{_geom_name(model, g2)}")
+    return sorted(set(out))
+
+
+def _geom_name(model: mujoco.MjModel, g: int) -> str:
+    return (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g)
+            or f"geom{g}@{model.body(model.geom_bodyid[g]).name}")
+
+
+def robot_bodies(model: mujoco.MjModel, kin: robot.ArmKinematics) -> set[int]:
+    """Every body the rail joint carries: the carriage, the arm's base and its links."""
+    return _bodies_moved_by(model, kin.joint_names[0])
+
+
+def clearance_violations(model: mujoco.MjModel, data: mujoco.MjData, links: set[int],
+                         robot_body_ids: set[int], clearance: float = CLEARANCE_M) -> list[str]:
+    """What the arm links come closer to than ``clearance`` at ``data.qpos``.
+
+    Runs MuJoCo's collision detection itself (kinematics and collision, with the arm links'
+    geom margins raised to ``clearance`` for the call and restored after). A link closer than
+    ``clearance`` to anything outside the robot (object, table, floor), or touching another
+    part of the robot, is a violation; as readable ``"geom1/geom2 (d mm)"`` strings.
+
+    Parameters
+    ----------
+    links : set of int
+        Bodies moved by the arm joints (:func:`arm_link_bodies`).
+    robot_body_ids : set of int
+        Bodies carried by the rail (:func:`robot_bodies`): near them only contact counts.
+    clearance : float
+        Metres.
+    """
+    arm_geom = np.isin(model.geom_bodyid, sorted(links))
+    saved = model.geom_margin[arm_geom].copy()
+    model.geom_margin[arm_geom] = np.maximum(saved, clearance)
+    try:
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_collision(model, data)
+        out = []
+        for c in data.contact[: data.ncon]:
+            g1, g2 = int(c.geom[0]), int(c.geom[1])
+            b1, b2 = int(model.geom_bodyid[g1]), int(model.geom_bodyid[g2])
+            if b1 not in links and b2 not in links:
+                continue
+            limit = 0.0 if (b1 in robot_body_ids and b2 in robot_body_ids) else clearance
+            if c.dist < limit:
+                out.append(f"{_geom_name(model, g1)}/{_geom_name(model, g2)} "
+                           f"({c.dist * 1e3:.1f} mm)")
+    finally:
+        model.geom_margin[arm_geom] = saved
     return sorted(set(out))
 
 
 def _solve_one(model, data, kin, view: View, q_prev, *, seed: int, restarts: int,
-               rolls, links: set[int], qidx: np.ndarray, saved: np.ndarray) -> list[str]:
+               rolls, links: set[int], robot_ids: set[int], qidx: np.ndarray,
+               saved: np.ndarray) -> list[str]:
     """Try to reach ``view`` (upright first, then rolled), starting from ``q_prev`` and from the
     arm's default seed. Fills ``view.q`` (and its roll and pose) on success; returns the reasons
     of the failed attempts."""
@@ -385,14 +445,16 @@ def _solve_one(model, data, kin, view: View, q_prev, *, seed: int, restarts: int
                 reasons.append(f"roll {roll:+.0f}: IK {res.position_error * 1e3:.1f} mm "
                                f"{np.rad2deg(res.rotation_error):.2f} deg off")
                 continue
+            q = res.q if q_prev is None else kin.nearest_equivalent(res.q, q_prev)
             data.qpos[:] = saved
-            data.qpos[qidx] = res.q
-            mujoco.mj_forward(model, data)
-            hits = arm_collisions(model, data, links)
+            data.qpos[qidx] = q
+            hits = clearance_violations(model, data, links, robot_ids)
             if hits:
-                reasons.append(f"roll {roll:+.0f}: collision {', '.join(hits[:3])}")
+                reasons.append(f"roll {roll:+.0f}: too close (clearance "
+                               f"{CLEARANCE_M * 1e3:.0f} mm, contact within the arm): "
+                               f"{', '.join(hits[:3])}")
                 continue
-            view.q, view.roll_deg, view.reason = res.q.copy(), roll, ""
+            view.q, view.roll_deg, view.reason = q.copy(), roll, ""
             view.T_world_camera = T
             return []
     return reasons
@@ -433,7 +495,8 @@ def solve_views(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinema
     qidx = robot.qpos_indices(model, kin)
     links = arm_link_bodies(model, kin)
     saved = data.qpos.copy()
-    kw = dict(restarts=restarts, rolls=tuple(rolls), links=links, qidx=qidx, saved=saved)
+    kw = dict(restarts=restarts, rolls=tuple(rolls), links=links,
+              robot_ids=robot_bodies(model, kin), qidx=qidx, saved=saved)
     q_prev = None if q_start is None else np.asarray(q_start, dtype=float)
     failed = False
     for view in views:
@@ -467,15 +530,18 @@ def solve_views(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinema
 
 def check_paths(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinematics,
                 views: list[View], q_start=None) -> None:
-    """Check the straight joint-space move into every reachable view for contacts of the arm.
+    """Check the straight joint-space move into every reachable view: the arm keeps
+    :data:`CLEARANCE_M` from everything outside the robot and does not touch itself.
 
     The arm travels from ``q_start`` (if given) to the first reachable view, then from each
     reachable view to the next, as :mod:`sim.capture` drives it. A view whose incoming move
-    touches something (the table, the object, the arm itself) is made unreachable with the
-    reason, and the next move starts from the last view kept.
+    comes too close to something (the table, the object, the floor) or makes the arm touch
+    itself is made unreachable with the reason, and the next move starts from the last view
+    kept.
     """
     qidx = robot.qpos_indices(model, kin)
     links = arm_link_bodies(model, kin)
+    robot_ids = robot_bodies(model, kin)
     saved = data.qpos.copy()
     q_prev = None if q_start is None else np.asarray(q_start, dtype=float)
     for view in views:
@@ -486,12 +552,12 @@ def check_paths(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinema
             for t in np.arange(1, n) / n:
                 data.qpos[:] = saved
                 data.qpos[qidx] = q_prev + t * (view.q - q_prev)
-                mujoco.mj_forward(model, data)
-                hits = arm_collisions(model, data, links)
+                hits = clearance_violations(model, data, links, robot_ids)
                 if hits:
                     view.q = None
-                    view.reason = (f"the move from the previous view touches "
-                                   f"{', '.join(hits[:3])} ({t:.0%} of the way)")
+                    view.reason = (f"the move from the previous view comes closer than "
+                                   f"{CLEARANCE_M * 1e3:.0f} mm to {', '.join(hits[:3])} "
+                                   f"({t:.0%} of the way)")
                     break
         if view.reachable:
             q_prev = view.q

@@ -311,6 +311,84 @@ def test_held_object_stays_and_an_arm_hitting_it_is_seen_at_every_step():
     assert any("truck" in h for h in hits), hits
 
 
+def test_min_jerk_profile_and_its_derivatives():
+    taus = np.linspace(0.0, 1.0, 2001)
+    s, ds, dds = np.array([C.min_jerk(t) for t in taus]).T
+    assert s[0] == 0.0 and s[-1] == pytest.approx(1.0)
+    assert ds[0] == ds[-1] == 0.0 and dds[0] == 0.0 and dds[-1] == pytest.approx(0.0, abs=1e-12)
+    assert np.all(np.diff(s) >= 0.0)
+    assert ds.max() == pytest.approx(C.MIN_JERK_PEAK_SPEED)
+    h = taus[1] - taus[0]
+    np.testing.assert_allclose(np.gradient(s, h)[1:-1], ds[1:-1], atol=1e-5)
+    np.testing.assert_allclose(np.gradient(ds, h)[1:-1], dds[1:-1], atol=1e-4)
+
+
+def test_servo_gains_refuse_an_actuator_that_is_no_position_servo():
+    model = mujoco.MjModel.from_xml_string("""<mujoco><worldbody><body><joint name="j"/>
+      <geom size="0.1"/></body></worldbody><actuator><motor joint="j"/></actuator></mujoco>""")
+    with pytest.raises(ValueError, match="position servos"):
+        C.servo_gains(model, [0])
+
+
+def test_arm_follows_the_planned_line_with_the_rail_in_step():
+    """A long move (rail 4.4 rad, a wrist flip) stays on the straight joint-space line the
+    planner checked: within 3 mrad on every joint, the rail's 0.8 m lever included. Fed only the
+    reference, the rail's servo (0.3 s lag) trailed the line by 0.3 rad (scraper_truck's capture
+    touched the blade that way); the arm ends at its target without sag."""
+    sc = load_scene("scraper_truck").with_joint_holds()
+    data = sc.make_data("b")
+    sc.hold(data, "b")
+    kin = robot.load_arm_kinematics(sc.model)
+    arm = C._Arm(sc.model, data, kin)
+    assert arm.kp[0] > 0 and (arm.kv[0] / arm.kp[0]) > 0.25  # the slow rail servo
+    q0 = np.array([2.33, -1.16, 0.33, -2.28, 1.11, -1.70, 2.65])
+    q1 = np.array([-2.12, 1.66, 1.06, -3.90, 2.42, 1.43, 4.52])
+    arm.place(q0)
+    assert arm.move(q1) == []
+    assert np.all(arm.max_path_deviation < 3e-3), arm.max_path_deviation
+    np.testing.assert_allclose(arm.measured_q(), q1, atol=1e-4)
+
+
+def test_clearance_violations_match_the_distance_to_the_object():
+    """The planner's check flags an arm link closer than the clearance to the object (and only
+    then), by MuJoCo's own distance between the geoms."""
+    sc = load_scene("truck")
+    model, data = sc.model, sc.make_data("a")
+    kin = robot.load_arm_kinematics(model)
+    links, robot_ids = views.arm_link_bodies(model, kin), views.robot_bodies(model, kin)
+    qidx = robot.qpos_indices(model, kin)
+    margins = model.geom_margin.copy()
+    arm_geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] in links
+                 and (model.geom_contype[g] or model.geom_conaffinity[g])]
+    other = [g for g in range(model.ngeom) if model.geom_bodyid[g] not in robot_ids
+             and (model.geom_contype[g] or model.geom_conaffinity[g])]
+    centre, _ = views.object_bounding_sphere(model, data)
+    T = robot.look_at_pose(centre + [0.45, 0.0, 0.25], centre)
+    q_view = robot.solve_view_ik(kin, T).q
+    # approach the object along the camera's line of sight until the clearance is broken
+    seen = {"clear": 0, "close": 0}
+    saved = data.qpos.copy()
+    for d in np.linspace(0.45, 0.05, 25):
+        ik = robot.solve_view_ik(kin, robot.look_at_pose(centre + [d, 0.0, 0.25 * d / 0.45],
+                                                         centre), q_view)
+        if not ik.success:
+            continue
+        data.qpos[:] = saved
+        data.qpos[qidx] = ik.q
+        mujoco.mj_forward(model, data)
+        gap = min(mujoco.mj_geomDistance(model, data, a, b, 0.05, None)
+                  for a in arm_geoms for b in other)
+        hits = views.clearance_violations(model, data, links, robot_ids)
+        if gap > views.CLEARANCE_M + 1e-3:
+            assert not hits, (d, gap, hits)
+            seen["clear"] += 1
+        elif gap < views.CLEARANCE_M - 1e-3:
+            assert hits, (d, gap)
+            seen["close"] += 1
+    assert seen["clear"] and seen["close"], seen
+    np.testing.assert_array_equal(model.geom_margin, margins)  # restored
+
+
 #: The accuracy gates (tests/test_gates.py, tests/test_gates_more.py) capture these scenes in both
 #: configurations and check that every planned view was captured; planning the others here keeps
 #: CI from planning twice.

@@ -179,6 +179,31 @@ def test_ik_converges_within_limits(stage):
     assert res.success and res.rotation_error == 0.0
 
 
+def test_nearest_equivalent_is_the_same_pose_by_the_shortest_turns(stage):
+    """Whole turns of a joint whose range exceeds one (the PUMA's wrist roll, +-266 deg) give the
+    same pose; the planner takes the one nearest the previous view's configuration."""
+    _, kin = stage
+    wide = np.flatnonzero(kin.upper - kin.lower > 2 * np.pi)
+    assert len(wide) >= 1  # the wrist roll at least
+    for q, ref in zip(_random_q(kin, 20, seed=7), _random_q(kin, 20, seed=8), strict=True):
+        near = kin.nearest_equivalent(q, ref)
+        np.testing.assert_allclose(kin.camera_pose(near), kin.camera_pose(q), atol=1e-9)
+        assert np.all(near >= kin.lower) and np.all(near <= kin.upper)
+        turns = (near - q) / (2 * np.pi)
+        np.testing.assert_allclose(turns, np.round(turns), atol=1e-9)
+        for i in range(kin.nq):  # no other whole turn within the limits is nearer
+            for k in (-1, 1):
+                other = near[i] + 2 * np.pi * k
+                if kin.lower[i] <= other <= kin.upper[i]:
+                    assert abs(near[i] - ref[i]) <= abs(other - ref[i]) + 1e-12
+    q = np.r_[0.0, kin.spec.home]
+    j = wide[-1]
+    q[j] = kin.upper[j] - 0.1
+    ref = q.copy()
+    ref[j] = q[j] - 2 * np.pi + 0.05  # a turn away, nearly
+    assert kin.nearest_equivalent(q, ref)[j] == pytest.approx(q[j] - 2 * np.pi)
+
+
 def test_ik_reports_failure_for_unreachable_target(stage):
     _, kin = stage
     T = np.eye(4)
