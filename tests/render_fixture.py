@@ -232,38 +232,6 @@ def lid_transform_a_to_b() -> np.ndarray:
 TEST_VIEWS = 36
 
 
-def _pytest_fixtures():
-    import pytest
-
-    @pytest.fixture(scope="session")
-    def rendered(tmp_path_factory):
-        """Configuration A and B of the hinge fixture, rendered once per session."""
-        root = tmp_path_factory.mktemp("hinge")
-        return {c: render_set(root / c, c, TEST_VIEWS) for c in ("a", "b")}
-
-    @pytest.fixture(scope="session")
-    def reconstruction_sfm(rendered, tmp_path_factory):
-        """The whole run, cameras from the images alone (the method's default)."""
-        from artrecon import reconstruct
-
-        out = tmp_path_factory.mktemp("run") / "sfm"
-        model = reconstruct(rendered["a"].folder, rendered["b"].folder, out_dir=out,
-                            progress=False)
-        return model, out
-
-    @pytest.fixture(scope="session")
-    def reconstruction_poses(rendered, tmp_path_factory):
-        """The whole run with the cameras' known poses (fast path)."""
-        from artrecon import reconstruct
-
-        out = tmp_path_factory.mktemp("run") / "poses"
-        model = reconstruct(rendered["a"].folder, rendered["b"].folder, poses=True, out_dir=out,
-                            progress=False)
-        return model, out
-
-    return rendered, reconstruction_sfm, reconstruction_poses
-
-
 def camera_centres(model_dir) -> dict:
     """Camera centre (3,) per image name of a COLMAP model folder."""
     import pycolmap

@@ -19,14 +19,11 @@ import cv2
 import numpy as np
 import pytest
 import render_fixture as rf
-from render_fixture import _pytest_fixtures
 
 from artrecon import io
 from artrecon.cli import main
 from artrecon.errors import InputError, ReconstructionError
 from artrecon.reconstruct import reconstruct
-
-rendered, reconstruction_sfm, reconstruction_poses = _pytest_fixtures()
 
 REPO = Path(__file__).resolve().parents[1]
 

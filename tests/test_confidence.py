@@ -6,7 +6,6 @@ import json
 
 import numpy as np
 import pytest
-from render_fixture import _pytest_fixtures
 from scipy.spatial.transform import Rotation
 from synthetic import CHILD_HALF, GAP, ROOT_HALF, axis_angle_error, line_distance
 
@@ -18,8 +17,6 @@ from artrecon.model import ArticulatedModel, Joint, Link
 from artrecon.procrustes import Similarity, shared_scale_transforms
 from artrecon.register import apply_registration
 from artrecon.segment import Segmentation
-
-rendered, reconstruction_sfm, reconstruction_poses = _pytest_fixtures()
 
 #: The synthetic object in metres: a 30 cm base with a 15 cm child (like the bundled scenes).
 METRES = 0.3

@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from render_fixture import _pytest_fixtures, align_to_truth
+from render_fixture import align_to_truth
 from scipy.spatial import cKDTree
 
 from artrecon import dense
-
-rendered, reconstruction_sfm, reconstruction_poses = _pytest_fixtures()
 
 #: Median distance of dense points to the true surface, as a fraction of the camera distance
 #: (0.5 m): 0.4% = 2 mm. Measured: about 1.1 mm (downsampled SGBM, 20-degree baselines).

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import render_fixture as rf
-from render_fixture import _pytest_fixtures, align_to_truth, axis_errors
+from render_fixture import align_to_truth, axis_errors
 
 from artrecon import features
 from artrecon.cli import main
@@ -14,8 +14,6 @@ from artrecon.model import ArticulatedModel
 from artrecon.procrustes import Similarity
 from artrecon.reconstruct import merge_equivalent_links, reconstruct, write_ply
 from artrecon.segment import Segmentation
-
-rendered, reconstruction_sfm, reconstruction_poses = _pytest_fixtures()
 
 #: Gates on the rendered hinge (30 degrees of motion). Measured with SfM from images:
 #: axis angle ~0.01 deg, axis distance ~0.1 mm, angle error ~0.01 deg.

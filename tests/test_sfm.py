@@ -7,12 +7,10 @@ import json
 import cv2
 import numpy as np
 import pytest
-from render_fixture import _pytest_fixtures, align_to_truth, camera_centres
+from render_fixture import align_to_truth, camera_centres
 
 from artrecon import io, sfm
 from artrecon.errors import InputError, ReconstructionError
-
-rendered, reconstruction_sfm, reconstruction_poses = _pytest_fixtures()
 
 #: Camera centre error gates after the similarity alignment, as a fraction of the ring radius
 #: (0.5 m): 0.5% = 2.5 mm. Measured: about 0.1 mm (SfM from images), ~0 with known poses.
