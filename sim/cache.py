@@ -166,6 +166,11 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
+def is_cached(root: str | os.PathLike, stage: str, inputs: dict) -> bool:
+    """Whether :func:`cached_stage` would find a complete folder for these inputs."""
+    return (Path(root) / stage_key(stage, inputs) / STAGE_FILE).is_file()
+
+
 def cached_stage(root: str | os.PathLike, stage: str, inputs: dict,
                  build: Callable[[Path], dict]) -> tuple[Path, dict, bool]:
     """The output folder of a stage, built by ``build`` unless a complete one exists.

@@ -34,6 +34,7 @@ import shutil
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -150,6 +151,17 @@ def _depth_png(depth: np.ndarray) -> np.ndarray:
     units = np.round(np.asarray(depth, dtype=np.float64) / DEPTH_PNG_SCALE)
     units[(units <= 0) | (units > 65535)] = 0
     return units.astype(np.uint16)
+
+
+#: zlib level of the PNGs written: 1 compresses a colour image 3x faster than PIL's default 6 and
+#: makes it 15% larger (27 vs 80 ms, 384 vs 335 kB at 640 x 480); the pixels are the same.
+PNG_COMPRESS_LEVEL = 1
+
+
+def _write_pngs(items) -> None:
+    """Write ``(array, path)`` pairs as PNG files."""
+    for array, path in items:
+        Image.fromarray(array).save(path, compress_level=PNG_COMPRESS_LEVEL)
 
 
 def read_depth_png(path) -> np.ndarray:
@@ -402,6 +414,10 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
         arm.place(reachable[0].q)
 
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".tmp", dir=out_dir.parent))
+    # PNGs are compressed and written in a background thread (zlib releases the GIL) while the
+    # arm moves to the next view
+    writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="capture-png")
+    writes = []
     try:
         for sub in ("images", "ground_truth/depth", "ground_truth/labels"):
             (tmp / sub).mkdir(parents=True)
@@ -446,9 +462,10 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
             t2 = time.perf_counter()
             t_move += t1 - t0
             t_render += t2 - t1
-            Image.fromarray(out.color).save(tmp / "images" / name)
-            Image.fromarray(_depth_png(out.depth)).save(tmp / "ground_truth" / "depth" / name)
-            Image.fromarray(_labels_png(out.labels)).save(tmp / "ground_truth" / "labels" / name)
+            writes.append(writer.submit(_write_pngs, (
+                (out.color, tmp / "images" / name),
+                (_depth_png(out.depth), tmp / "ground_truth" / "depth" / name),
+                (_labels_png(out.labels), tmp / "ground_truth" / "labels" / name))))
             cam_images.append({
                 "file": name,
                 "pose_source": "arm_fk" if view.reachable else "free_camera",
@@ -509,6 +526,8 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
             "depth_png_scale_m": DEPTH_PNG_SCALE,
             "images": gt_images,
         }
+        for w in writes:
+            w.result()  # raises the first failed write
         for path, obj in ((tmp / "cameras.json", cameras), (tmp / "capture.json", report),
                           (tmp / "ground_truth" / "poses.json", truth)):
             path.write_text(json.dumps(obj, indent=2) + "\n")
@@ -523,8 +542,11 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
             os.replace(tmp, out_dir)
     except BaseException:
         bar.close()
+        writer.shutdown(wait=True, cancel_futures=True)
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    finally:
+        writer.shutdown(wait=True)
     t_end = time.perf_counter()
     result = CaptureResult(
         out_dir=out_dir, n_planned=len(plan.views), n_captured=len(to_take),

@@ -114,6 +114,9 @@ class EvalConfig:
     """run the manipulation stage"""
     progress: bool = True
     """tqdm progress bars"""
+    parallel_capture: bool = True
+    """capture configuration B in a second process while this one captures A (the capture is
+    mostly single-threaded: planning, physics, PNG writing); the images are the same"""
     perturb: perturb.Perturbation = field(default_factory=perturb.Perturbation)
     """perturbations of a robustness run (sim.perturb; default none)"""
 
@@ -219,16 +222,19 @@ def _manipulate_sources() -> str:
     return cache.source_hash([manipulate, robot, scene, views])
 
 
+def _capture_inputs(scene: Scene, configuration: str, ev: EvalConfig, scene_hash: str) -> dict:
+    import artrecon
+
+    return {"scene": scene.name, "scene_hash": scene_hash, "config": configuration,
+            "views": ev.views, "seed": ev.seed, "version": artrecon.__version__,
+            "code": _capture_sources(),
+            **perturb.capture_inputs(scene, ev.perturb, configuration)}
+
+
 def capture_stage(scene: Scene, configuration: str, ev: EvalConfig, cache_root: Path,
                   scene_hash: str) -> tuple[Path, dict, bool]:
     """Capture one configuration (cached). Returns the image set folder, stage metadata, hit."""
-    import artrecon
     from sim.capture import capture
-
-    inputs = {"scene": scene.name, "scene_hash": scene_hash, "config": configuration,
-              "views": ev.views, "seed": ev.seed, "version": artrecon.__version__,
-              "code": _capture_sources(),
-              **perturb.capture_inputs(scene, ev.perturb, configuration)}
 
     def build(folder: Path) -> dict:
         res = capture(perturb.capture_scene(scene, ev.perturb, configuration), configuration,
@@ -239,8 +245,41 @@ def capture_stage(scene: Scene, configuration: str, ev: EvalConfig, cache_root: 
                 "max_fk_rotation_error_deg": float(np.rad2deg(res.max_fk_rotation_error)),
                 "timings": res.timings}
 
+    inputs = _capture_inputs(scene, configuration, ev, scene_hash)
     folder, meta, hit = cache.cached_stage(cache_root, f"capture_{configuration}", inputs, build)
     return folder / "set", meta, hit
+
+
+def capture_stages(scene: Scene, ev: EvalConfig, cache_root: Path,
+                   scene_hash: str) -> dict[str, tuple | BaseException]:
+    """:func:`capture_stage` of configurations A and B, each its result or its exception.
+
+    When both must be built and ``ev.parallel_capture`` is set, B is captured in a second process
+    (spawned: its own MuJoCo and OpenGL context, no progress bar) while this process captures A.
+    """
+    todo = [c for c in ("a", "b") if not cache.is_cached(
+        cache_root, f"capture_{c}", _capture_inputs(scene, c, ev, scene_hash))]
+    out: dict[str, tuple | BaseException] = {}
+    pool = future = None
+    if ev.parallel_capture and len(todo) == 2:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+        from dataclasses import replace
+
+        pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+        future = pool.submit(capture_stage, scene, "b", replace(ev, progress=False), cache_root,
+                             scene_hash)
+    try:
+        for c in ("a", "b"):
+            try:
+                out[c] = (future.result() if c == "b" and future is not None
+                          else capture_stage(scene, c, ev, cache_root, scene_hash))
+            except Exception as err:
+                out[c] = err
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True)
+    return out
 
 
 def reconstruct_stage(set_a: Path, set_b: Path, keys: tuple[str, str], ev: EvalConfig,
@@ -669,9 +708,13 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
         scene_hash = cache.scene_hash(scene.path)
         result["scene_hash"] = scene_hash
         sets, keys = {}, []
+        stage = "capture_a"
+        captures = capture_stages(scene, ev, cache_root, scene_hash)
         for c in ("a", "b"):
             stage = f"capture_{c}"
-            folder, meta, hit = capture_stage(scene, c, ev, cache_root, scene_hash)
+            if isinstance(captures[c], BaseException):
+                raise captures[c]
+            folder, meta, hit = captures[c]
             folder, key, pmeta = perturb.set_stage(folder, meta["key"], scene, ev.perturb,
                                                    ev.seed, c, cache_root)
             sets[c] = folder
