@@ -62,6 +62,10 @@ class Link:
     normals : (n, 3) float, optional
         Unit normals, where known.
     name : str
+    observed_in : (n,) int8, optional
+        Where each point was seen: 0 in configuration A, 1 in configuration B (a dense point of
+        B, carried into configuration A by the link's transform: a part that only B showed).
+        None where not recorded (e.g. matches, or a model written before it existed).
     """
 
     points: np.ndarray
@@ -70,6 +74,7 @@ class Link:
     colours: np.ndarray | None = None
     normals: np.ndarray | None = None
     name: str = ""
+    observed_in: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.points = _array("Link.points", self.points, (3,))
@@ -87,6 +92,11 @@ class Link:
             self.normals = _array("Link.normals", self.normals, (3,))
             if len(self.normals) != n:
                 raise ValueError(f"Link.normals must have shape ({n}, 3), got {self.normals.shape}")
+        if self.observed_in is not None:
+            self.observed_in = np.asarray(self.observed_in, dtype=np.int8).reshape(-1)
+            if self.observed_in.shape != (n,) or not np.isin(self.observed_in, (0, 1)).all():
+                raise ValueError(f"Link.observed_in must be ({n},) values 0 (configuration A) or "
+                                 f"1 (B), got shape {self.observed_in.shape}")
 
     @property
     def centroid(self) -> np.ndarray:
@@ -290,6 +300,7 @@ class ArticulatedModel:
                     "match_indices": _encode(lk.match_indices),
                     "colours": _encode(lk.colours),
                     "normals": _encode(lk.normals),
+                    "observed_in": _encode(lk.observed_in),
                     "transform_a_to_b": lk.transform_a_to_b.to_dict(),
                 }
                 for lk in self.links
@@ -333,6 +344,7 @@ class ArticulatedModel:
                 colours=_decode(lk["colours"]),
                 normals=_decode(lk["normals"]),
                 name=lk["name"],
+                observed_in=_decode(lk.get("observed_in")),
             )
             for lk in d["links"]
         ]

@@ -473,17 +473,10 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
         denses["a"], denses["b"], matches.points_a, matches.points_b, seg,
         views_a=views_from_sfm(sfms["a"]), views_b=views_from_sfm(sfms["b"]),
         occluders_a=occluders["a"], occluders_b=occluders["b"], config=config.assign, seed=seed)
-    links = []
+    links = links_from_labels(denses["a"], denses["b"], lab_a, lab_b, seg.transforms)
     (work / "links").mkdir(exist_ok=True)
-    for k, T in enumerate(seg.transforms):
-        ia, ib = lab_a == k, lab_b == k
-        inv = T.inverse()
-        pts = np.concatenate([denses["a"].points[ia], inv.apply(denses["b"].points[ib])])
-        nrm = np.concatenate([denses["a"].normals[ia], denses["b"].normals[ib] @ T.rotation])
-        col = np.concatenate([denses["a"].colors[ia], denses["b"].colors[ib]])
-        links.append(Link(points=pts, match_indices=np.full(len(pts), -1), transform_a_to_b=T,
-                          colours=col, normals=nrm, name=f"link_{k}"))
-        write_ply(work / "links" / f"link_{k}.ply", pts, nrm, col)
+    for k, lk in enumerate(links):
+        write_ply(work / "links" / f"link_{k}.ply", lk.points, lk.normals, lk.colours)
     timings["assign"] = time.perf_counter() - t
     metric = poses_a is not None and poses_b is not None
     model = ArticulatedModel(
@@ -515,6 +508,34 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     log.info("model: %d links, %d joints, timings %s", len(links), len(joints),
              {k: round(v, 1) for k, v in timings.items()})
     return model
+
+
+def links_from_labels(dense_a, dense_b, labels_a: np.ndarray, labels_b: np.ndarray,
+                      transforms) -> list[Link]:
+    """The links of a model from its labelled dense points (configuration A's frame).
+
+    Link k holds the points of A labelled k and the points of B labelled k carried back into A
+    by the inverse of its transform: together, the link as both configurations saw it (what one
+    of them hid, the other may show). ``Link.observed_in`` says which configuration saw each.
+
+    Parameters
+    ----------
+    dense_a, dense_b : artrecon.dense.DensePoints
+    labels_a, labels_b : (len(dense_a),), (len(dense_b),) int
+        Link per point (artrecon.assign).
+    transforms : sequence of Similarity
+        Each link's A -> B transform.
+    """
+    links = []
+    for k, T in enumerate(transforms):
+        ia, ib = labels_a == k, labels_b == k
+        pts = np.concatenate([dense_a.points[ia], T.inverse().apply(dense_b.points[ib])])
+        nrm = np.concatenate([dense_a.normals[ia], dense_b.normals[ib] @ T.rotation])
+        col = np.concatenate([dense_a.colors[ia], dense_b.colors[ib]])
+        seen = np.concatenate([np.zeros(int(ia.sum()), np.int8), np.ones(int(ib.sum()), np.int8)])
+        links.append(Link(points=pts, match_indices=np.full(len(pts), -1), transform_a_to_b=T,
+                          colours=col, normals=nrm, name=f"link_{k}", observed_in=seen))
+    return links
 
 
 def _jsonable(obj):

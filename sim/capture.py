@@ -147,6 +147,17 @@ def _labels_png(labels: np.ndarray) -> np.ndarray:
     return out
 
 
+def read_labels_png(path) -> np.ndarray:
+    """Labels : (h, w) int from a ground-truth label PNG: the object link's index, or
+    LABEL_ARM / LABEL_STAGE / LABEL_BACKGROUND (all < 0) for anything else."""
+    png = np.asarray(Image.open(path), dtype=np.int64)
+    out = png.copy()
+    out[png == LABEL_PNG_ARM] = LABEL_ARM
+    out[png == LABEL_PNG_STAGE] = LABEL_STAGE
+    out[png == LABEL_PNG_BACKGROUND] = render.LABEL_BACKGROUND
+    return out
+
+
 def _depth_png(depth: np.ndarray) -> np.ndarray:
     units = np.round(np.asarray(depth, dtype=np.float64) / DEPTH_PNG_SCALE)
     units[(units <= 0) | (units > 65535)] = 0

@@ -288,6 +288,63 @@ def visible_from_camera(points: np.ndarray, K: np.ndarray, T_world_camera: np.nd
     return out
 
 
+def rendered_labels(points: np.ndarray, views, n_labels: int,
+                    tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """True label of world points from rendered label images: the label that most of the views
+    seeing a point show at its pixel.
+
+    A view sees a point when the point projects into the image in front of the camera and lies
+    within ``tolerance`` of the rendered depth at its pixel (nearer: the view saw free space
+    there; farther: something hid the point). A point that no view sees, or whose majority label
+    is not an object link (the table, the arm, the room), gets -1.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        World points (m), in the configuration the views show.
+    views : iterable of (K, T_world_camera, depth, labels)
+        OpenCV intrinsics (3, 3), camera pose (4, 4), rendered depth (h, w) in m (0: nothing),
+        rendered labels (h, w) int: the object link at each pixel, < 0 for anything else.
+    n_labels : int
+        Number of object links (labels 0 .. n_labels - 1).
+    tolerance : float
+        Depth band (m).
+
+    Returns
+    -------
+    labels : (n,) int
+    votes : (n,) int
+        How many views saw each point.
+    """
+    X = np.asarray(points, dtype=float)
+    if X.ndim != 2 or X.shape[1] != 3:
+        raise ValueError(f"points: expected shape (n, 3), got {X.shape}")
+    counts = np.zeros((len(X), n_labels + 1), dtype=np.int32)  # last column: not the object
+    for K, T_world_camera, depth, labels in views:
+        K, T = np.asarray(K, float), np.asarray(T_world_camera, float)
+        depth, labels = np.asarray(depth, float), np.asarray(labels)
+        if depth.shape != labels.shape or depth.ndim != 2:
+            raise ValueError(f"depth and labels must be one (h, w) shape, got {depth.shape} and "
+                             f"{labels.shape}")
+        Xc = (X - T[:3, 3]) @ T[:3, :3]
+        z = Xc[:, 2]
+        front = z > 1e-9
+        uv = (Xc @ K.T)[:, :2] / np.where(front, z, 1.0)[:, None]
+        u, v = np.round(uv[:, 0]), np.round(uv[:, 1])
+        h, w = depth.shape
+        inside = np.flatnonzero(front & (u >= 0) & (u < w) & (v >= 0) & (v < h))
+        ui, vi = u[inside].astype(np.int64), v[inside].astype(np.int64)
+        d = depth[vi, ui]
+        seen = (d > 0) & (np.abs(z[inside] - d) <= tolerance)
+        lab = labels[vi[seen], ui[seen]].astype(np.int64)
+        lab = np.where((lab >= 0) & (lab < n_labels), lab, n_labels)
+        np.add.at(counts, (inside[seen], lab), 1)
+    votes = counts.sum(axis=1)
+    best = counts.argmax(axis=1)
+    out = np.where((votes > 0) & (best < n_labels), best, -1)
+    return out.astype(int), votes.astype(int)
+
+
 def accuracy_completeness_on(points_pred: np.ndarray, surface_samples: np.ndarray,
                              mask: np.ndarray,
                              radius: float = COMPLETENESS_RADIUS_M) -> dict[str, float]:

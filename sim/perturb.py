@@ -414,10 +414,11 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0) ->
     from artrecon.confidence import assess_joints
     from artrecon.dense import DensePoints
     from artrecon.joints import build_kinematic_tree, estimate_joints
-    from artrecon.model import ArticulatedModel, Link
+    from artrecon.model import ArticulatedModel
     from artrecon.reconstruct import (
         ReconstructConfig,
         assign_dense_to_links,
+        links_from_labels,
         merge_equivalent_links,
         reroot,
         static_link,
@@ -443,14 +444,7 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0) ->
         pts, nrm, col = read_ply(model_dir / c / "dense.ply")
         dense[c] = DensePoints(pts, nrm, col, np.zeros((len(pts), 0), bool), [])
     lab_a, lab_b = assign_dense_to_links(dense["a"], dense["b"], pa, pb, seg)
-    links = []
-    for k, T in enumerate(seg.transforms):
-        ia, ib = lab_a == k, lab_b == k
-        pts = np.concatenate([dense["a"].points[ia], T.inverse().apply(dense["b"].points[ib])])
-        nrm = np.concatenate([dense["a"].normals[ia], dense["b"].normals[ib] @ T.rotation])
-        col = np.concatenate([dense["a"].colors[ia], dense["b"].colors[ib]])
-        links.append(Link(points=pts, match_indices=np.full(len(pts), -1), transform_a_to_b=T,
-                          colours=col, normals=nrm, name=f"link_{k}"))
+    links = links_from_labels(dense["a"], dense["b"], lab_a, lab_b, seg.transforms)
     old = ArticulatedModel.load(model_dir / "model.json")
     correct = ~wrong
     summary = {"match_outliers": fraction, "matches": int(len(pa)), "made_wrong": int(wrong.sum()),

@@ -126,20 +126,29 @@ def test_segmentation_accuracy_against_true_links(truck, truck_samples):
     assert acc == pytest.approx(1.0 - k / len(P), abs=1e-9)
 
 
-def _fake_capture(folder: Path, scene, n=4):
-    """A capture folder with cameras on a ring, an empty depth (nothing occludes) and truth."""
+def _fake_capture(folder: Path, scene, n=4, *, empty_depth=False, configuration="a"):
+    """A capture folder with cameras on a ring and its ground truth: depth and link labels
+    rendered in the configuration (or an empty depth: nothing occludes, no label)."""
+    from sim import render
+    from sim.capture import _depth_png, _geom_labels, _labels_png
     from sim.robot import look_at_pose
 
     K = np.array([[300.0, 0, 160], [0, 300, 120], [0, 0, 1]])
-    (folder / "ground_truth" / "depth").mkdir(parents=True)
+    for sub in ("depth", "labels"):
+        (folder / "ground_truth" / sub).mkdir(parents=True)
     (folder / "images").mkdir()
+    renderer = render.MjRenderer(scene.model, geom_labels=_geom_labels(scene.model, scene, -1))
+    data = scene.make_data(configuration)
     imgs, truth = [], []
     for i in range(n):
         a = 2 * np.pi * i / n
         T = look_at_pose([0.5 * np.cos(a), 0.5 * np.sin(a), 0.8], [0, 0, 0.5])
         name = f"{i:03d}.png"
-        Image.fromarray(np.zeros((240, 320), np.uint16)).save(folder / "ground_truth" / "depth"
-                                                              / name)
+        out = renderer.render(data, K, T, 320, 240, depth=True, labels=True)
+        depth = np.zeros((240, 320)) if empty_depth else out.depth
+        labels = np.full((240, 320), render.LABEL_BACKGROUND) if empty_depth else out.labels
+        Image.fromarray(_depth_png(depth)).save(folder / "ground_truth" / "depth" / name)
+        Image.fromarray(_labels_png(labels)).save(folder / "ground_truth" / "labels" / name)
         Image.fromarray(np.full((240, 320, 3), 128, np.uint8)).save(folder / "images" / name)
         imgs.append({"file": name, "q": None, "T_world_camera": T.tolist()})
         truth.append({"file": name, "T_world_camera": T.tolist(),
@@ -150,7 +159,7 @@ def _fake_capture(folder: Path, scene, n=4):
 
 
 def test_score_scene_camera_poses_scale_and_hidden_side(tmp_path, truck, truck_samples):
-    poses = _fake_capture(tmp_path / "a", truck)
+    poses = _fake_capture(tmp_path / "a", truck, empty_depth=True)
     # an SfM frame at half the scale, rotated and shifted: T_world_sfm is that similarity
     T = Similarity(Rotation.from_rotvec([0.2, -0.1, 0.4]).as_matrix(), np.array([0.1, 0.2, 0.3]),
                    2.0)
@@ -170,13 +179,82 @@ def test_score_scene_camera_poses_scale_and_hidden_side(tmp_path, truck, truck_s
     assert cam["rotation_max_deg"] == pytest.approx(0.0, abs=1e-4)  # arccos near 1
     assert cam["n"] == 4
     assert abs(out["scale_error_pct"]) < 0.5  # one 3 mm outlier among 4 cameras 0.5 m away
-    # true points score all but the few where the two links touch (the nearest sample of
-    # another, denser sampling may lie on the other link there)
-    assert out["segmentation_accuracy"] > 0.995
+    # an empty depth holds no point: no view says which link any point is on
+    assert out["segmentation"]["off_surface_share"] == pytest.approx(1.0)
+    # the nearest-surface figure at A scores true points all but right where the links touch
+    assert out["segmentation"]["accuracy_nearest_surface_at_a"] > 0.995
     # an empty depth image hides everything: the hidden side is the whole surface
     assert out["model"]["hidden_share_of_surface"] == pytest.approx(1.0)
     assert out["model"]["completeness"] == pytest.approx(out["model"]["hidden"]["completeness"])
     assert out["joints"][0]["passes"]
+
+
+def _seen_in_both(scene, samples, links, wrong_share=0.0):
+    """A registered model of the true surface samples: every other point "seen" in B (carried
+    back into A by its link's true motion), and ``wrong_share`` of the bed given to the chassis."""
+    pa, pb = scene.link_poses("a"), scene.link_poses("b")
+    rng = np.random.default_rng(5)
+    model_links = []
+    for k, li in enumerate(scene.links):
+        M = pb[li.name] @ np.linalg.inv(pa[li.name])
+        T = Similarity(M[:3, :3], M[:3, 3], 1.0)
+        pts = samples[links == k]
+        pts = pts[rng.choice(len(pts), min(len(pts), 3000), replace=False)]
+        seen = (np.arange(len(pts)) % 2).astype(np.int8)
+        model_links.append(Link(points=pts, match_indices=np.full(len(pts), -1),
+                                transform_a_to_b=T, observed_in=seen))
+    if wrong_share:
+        bed = model_links[1]
+        k = int(wrong_share * len(bed.points))
+        chassis = model_links[0]
+        model_links[0] = Link(np.r_[chassis.points, bed.points[:k]], np.full(
+            len(chassis.points) + k, -1), transform_a_to_b=chassis.transform_a_to_b,
+            observed_in=np.r_[chassis.observed_in, bed.observed_in[:k]])
+        model_links[1] = Link(bed.points[k:], np.full(len(bed.points) - k, -1),
+                              transform_a_to_b=bed.transform_a_to_b,
+                              observed_in=bed.observed_in[k:])
+    return ArticulatedModel(links=model_links, joints=[], scale=1.0, scale_known=True)
+
+
+def test_segmentation_scored_in_the_configuration_each_point_was_seen_in(tmp_path, truck,
+                                                                        truck_samples):
+    """The rendered labels of A score the points seen in A; those of B, where B's
+    reconstruction put them (its link's motion), the points seen in B. True links score 1 on
+    every point some view holds; 10% of the bed moved to the chassis, 10% of the bed's share."""
+    set_a = tmp_path / "a"
+    set_b = tmp_path / "b"
+    _fake_capture(set_a, truck, n=6)
+    _fake_capture(set_b, truck, n=6, configuration="b")
+    identity = Similarity()
+    model = _seen_in_both(truck, *truck_samples)
+    labels, seen = evaluate.segmentation_truth(truck, model, set_a, set_b, model, identity)
+    held = labels >= 0
+    assert 0.3 < held.mean() < 1.0  # six views from one height do not see the underside
+    assert set(seen[held].tolist()) == {0, 1}
+    pred = np.concatenate([np.full(len(lk.points), k) for k, lk in enumerate(model.links)])
+    assert np.mean(pred[held] == labels[held]) > 0.995
+    # the points seen in B, scored at A instead (no B capture given), land where the bed was:
+    # where the bed moved away, A's views do not put them on the bed
+    at_a, seen_a = evaluate.segmentation_truth(truck, model, set_a)
+    assert (seen_a == 0).all()
+    assert np.mean(pred[at_a >= 0] == at_a[at_a >= 0]) > 0.995  # at A they are where A saw them
+    wrong = _seen_in_both(truck, *truck_samples, wrong_share=0.1)
+    labels_w, _ = evaluate.segmentation_truth(truck, wrong, set_a, set_b, wrong, identity)
+    pred_w = np.concatenate([np.full(len(lk.points), k) for k, lk in enumerate(wrong.links)])
+    held_w = labels_w >= 0
+    # the bed points given to the chassis: right after the chassis' own points. Those seen in
+    # A are scored where they are: on the bed, wrong. Those seen in B are carried by the
+    # chassis' motion (none) to where the bed was: off the object, or on the chassis beneath
+    n0 = len(model.links[0].points)
+    k = len(wrong.links[0].points) - n0
+    moved = np.zeros(len(labels_w), bool)
+    moved[n0:n0 + k] = True
+    seen_a = np.concatenate([lk.observed_in for lk in wrong.links]) == 0
+    assert (labels_w[moved & seen_a & held_w] == 1).all()
+    assert (moved & seen_a & held_w).sum() > 0.2 * k
+    acc = np.mean(pred_w[held_w] == labels_w[held_w])
+    assert 1 - (moved & held_w).sum() / held_w.sum() - 0.005 <= acc
+    assert acc <= 1 - (moved & seen_a & held_w).sum() / held_w.sum() + 0.005
 
 
 def test_cache_builds_once_and_keys_on_inputs(tmp_path):

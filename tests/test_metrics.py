@@ -113,3 +113,27 @@ def test_accuracy_completeness_on_a_part_and_nearest_labels():
     labels = metrics.nearest_labels(np.array([[0.1, 0.1, 0.0], [0.1, 0.1, 0.5]]), surface,
                                     left.astype(int), 0.01)
     assert labels.tolist() == [1, -1]
+
+
+def test_rendered_labels_majority_of_the_views_that_hold_the_point():
+    """One camera at the origin looking along +z at a wall 1 m away: left half link 0, right
+    half link 1, one column the table (-2). A point on the wall takes the label at its pixel;
+    a point in front of the wall (free space) or behind it (hidden) gets no vote; with two
+    views that disagree, the majority of three wins."""
+    K = np.array([[100.0, 0, 50], [0, 100, 50], [0, 0, 1]])
+    depth = np.ones((101, 101))
+    labels = np.zeros((101, 101), int)
+    labels[:, 51:] = 1
+    labels[:, 50] = -2
+    T = np.eye(4)
+    view = (K, T, depth, labels)
+    P = np.array([[-0.2, 0.0, 1.0], [0.2, 0.0, 1.003], [0.0, 0.0, 1.0],
+                  [0.2, 0.0, 0.9], [0.2, 0.0, 1.2], [0.0, 0.0, -1.0]])
+    lab, votes = metrics.rendered_labels(P, [view], 2, 0.01)
+    assert lab.tolist() == [0, 1, -1, -1, -1, -1]
+    assert votes.tolist() == [1, 1, 1, 0, 0, 0]
+    other = (K, T, depth, 1 - labels.clip(0, 1))  # halves swapped
+    lab, votes = metrics.rendered_labels(P[:2], [view, other, view], 2, 0.01)
+    assert lab.tolist() == [0, 1] and votes.tolist() == [3, 3]
+    with pytest.raises(ValueError, match="shape"):
+        metrics.rendered_labels(P, [(K, T, depth, labels[:5])], 2, 0.01)

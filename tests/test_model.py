@@ -83,6 +83,19 @@ def test_optional_fields_round_trip(tmp_path):
     np.testing.assert_array_equal(back.joints[0].axis_direction, [0, 0, 1.0])
 
 
+def test_observed_in_round_trips_and_is_checked(tmp_path):
+    seen = np.array([0, 1, 1, 0], np.int8)
+    link = Link(points=np.arange(12.0).reshape(4, 3), match_indices=np.full(4, -1),
+                observed_in=seen)
+    back = ArticulatedModel.load(ArticulatedModel(links=[link], joints=[]).save(tmp_path / "m"
+                                                                                ".json"))
+    np.testing.assert_array_equal(back.links[0].observed_in, seen)
+    with pytest.raises(ValueError, match="observed_in"):
+        Link(points=np.zeros((4, 3)), match_indices=np.full(4, -1), observed_in=[0, 1])
+    with pytest.raises(ValueError, match="observed_in"):
+        Link(points=np.zeros((2, 3)), match_indices=np.full(2, -1), observed_in=[0, 2])
+
+
 def test_load_errors(tmp_path):
     with pytest.raises(InputError, match="does not exist"):
         ArticulatedModel.load(tmp_path / "missing.json")
