@@ -20,8 +20,15 @@ of configuration A (and of B) must then join one link. For a point ``p`` of A, t
 4. **Nearest match.** A weak prior for the link of the nearest segmented SIFT match.
 
 Labels are smooth on the surface: the costs are the unary terms of a Potts model on the
-k-nearest-neighbour graph of the points, minimised by iterated conditional modes from the best
-unary label. Symmetrically for the points of B with the inverse transforms.
+k-nearest-neighbour graph of the points, minimised by alpha-expansion graph cuts
+(:mod:`artrecon.potts`), which flip a whole wrongly labelled region at once where per-point
+updates stop at its border. Symmetrically for the points of B with the inverse transforms.
+
+The geometric fit runs twice. First ``q`` need only land on B's surface; that is fooled where
+links touch or stack (the lower jaw of closed pliers under the upper one: a point of one moved by
+the other's transform lands on the other). Then, with both configurations labelled, hypothesis k
+fits only where ``q`` lands on B's points *of link k*: the labels of each configuration check
+those of the other.
 """
 
 from __future__ import annotations
@@ -34,6 +41,8 @@ import numpy as np
 from scipy.ndimage import map_coordinates, minimum_filter
 from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
+
+from artrecon.potts import potts_expansion
 
 log = logging.getLogger(__name__)
 
@@ -64,12 +73,17 @@ class AssignConfig:
     """... fading with the distance to that match (e-fold at this many point spacings): a match
     says little about a point far from it, such as the inside of a drawer that only one
     configuration shows."""
-    smoothness: float = 0.5
-    """Potts weight per neighbour with another label."""
+    smoothness: float = 0.7
+    """Potts weight per neighbour with another label (0.5-1.0 all work; at 1.0 thin links
+    stacked on each other start to merge, under 0.5 a drawer's inside breaks into islands)."""
     neighbours: int = 8
     neighbour_radius: float = 2.5
     """Graph edges only up to this many median point spacings."""
-    iterations: int = 15
+    expansion_cycles: int = 4
+    """At most this many alpha-expansion passes over the links (it stops when none helps)."""
+    passes: int = 2
+    """Labelling passes: the first fits against the other configuration's whole surface, each
+    later one against its points of the same link (as the previous pass labelled them)."""
     patch_half: int = 3
     """Patch of (2 h + 1)^2 samples ..."""
     patch_step_px: float = 1.5
@@ -203,28 +217,94 @@ def _graph(X, k, radius):
     return ((G + G.T) > 0).astype(np.float64)
 
 
-def _potts_icm(U, G, weight, iterations, rng):
-    """Labels minimising sum U[l_i, i] + weight * #(neighbours with another label), by
-    iterated conditional modes (half the points updated per sweep, so it cannot oscillate)."""
-    lab = U.argmin(0)
-    if weight <= 0 or G.nnz == 0:
-        return lab
-    K = U.shape[0]
-    for _ in range(iterations):
-        same = np.stack([G @ (lab == k).astype(np.float64) for k in range(K)])
-        new = (U - weight * same).argmin(0)
-        update = rng.random(len(lab)) < 0.5
-        changed = update & (new != lab)
-        lab = np.where(update, new, lab)
-        if not changed.any():
-            break
-    return lab
+class _Evidence:
+    """The cues for labelling the points of one configuration (src) against the other (dst).
+
+    Everything but the geometric fit is computed once; the fit is redone per pass, against the
+    other configuration's labels once they exist (:meth:`unary`).
+    """
+
+    def __init__(self, src, src_normals, dst, transforms, residuals, match_src, match_labels,
+                 surface_src: _Surface | None, surface_dst: _Surface | None,
+                 config: AssignConfig):
+        K, n = len(transforms), len(src)
+        self.K, self.n, self.dst, self.config = K, n, dst, config
+        good = match_labels >= 0
+        if not good.any():
+            raise ValueError("assign: no segmented match to anchor the links (every match is "
+                             "an outlier); the segmentation found no link")
+        d_match, i_match = cKDTree(match_src[good]).query(src)
+        self.nearest = match_labels[good][i_match]
+        if K == 1:
+            return
+        tree = cKDTree(dst)
+        spacing = float(np.median(tree.query(dst, k=2)[0][:, 1]))
+        floor = config.spacing_factor * spacing
+        self.moved = [T.apply(src) for T in transforms]
+        self.threshold = [max(config.residual_factor * float(r), floor) for r in residuals]
+        self.fits_any = np.stack([tree.query(q)[0] < thr
+                                  for q, thr in zip(self.moved, self.threshold, strict=True)])
+        violations = np.zeros((K, n))
+        ncc = np.full((K, n), np.nan)
+        if surface_src is not None and surface_dst is not None:
+            vis_src, _ = surface_src.status(src, config.depth_tolerance, floor)
+            best_src = surface_src.best_view(vis_src, src, src_normals)
+            depth = np.full(n, np.nan)
+            for c in np.unique(best_src[best_src >= 0]):
+                m = best_src == c
+                depth[m] = surface_src.views[c].project(src[m])[2]
+            step = config.patch_step_px * depth / np.array(
+                [surface_src.views[max(c, 0)].K[0, 0] for c in best_src])
+            G = _patch_grid(src, src_normals, np.nan_to_num(step), config.patch_half)
+            patch_src = surface_src.sample(best_src, G)
+            for k, (T, q) in enumerate(zip(transforms, self.moved, strict=True)):
+                vis, bad = surface_dst.status(q, config.depth_tolerance, floor)
+                violations[k] = bad.sum(0)
+                best = surface_dst.best_view(vis, q, src_normals @ T.rotation.T)
+                patch = surface_dst.sample(best, T.apply(G.reshape(-1, 3)).reshape(G.shape))
+                ok = (best_src >= 0) & (best >= 0)
+                ncc[k, ok] = _ncc(patch_src[ok], patch[ok])
+        U = config.cost_violation * np.minimum(violations, config.violations_saturate) \
+            / config.violations_saturate
+        self.photo_share = float(np.mean(np.isfinite(ncc).all(0)))
+        all_photo = np.isfinite(ncc).all(0)
+        U = U + np.where(all_photo, config.cost_photo * (1.0 - np.nan_to_num(ncc)) / 2.0, 0.0)
+        src_spacing = float(np.median(cKDTree(src).query(src, k=2)[0][:, 1]))
+        prior = config.cost_match * np.exp(-d_match / (config.match_reach * src_spacing))
+        self.base = U + prior[None, :] * (np.arange(K)[:, None] != self.nearest[None, :])
+        self.graph = _graph(src, config.neighbours, config.neighbour_radius)
+
+    def fits(self, dst_labels: np.ndarray | None = None) -> np.ndarray:
+        """(K, n) bool: hypothesis k puts the point on the other configuration's surface (on
+        its points labelled k, given ``dst_labels``)."""
+        if dst_labels is None:
+            return self.fits_any
+        out = np.zeros((self.K, self.n), bool)
+        for k, (q, thr) in enumerate(zip(self.moved, self.threshold, strict=True)):
+            own = self.dst[dst_labels == k]
+            if len(own):
+                out[k] = cKDTree(own).query(q)[0] < thr
+        return out
+
+    def label(self, dst_labels: np.ndarray | None = None) -> np.ndarray:
+        """(n,) int: the labels of least Potts energy."""
+        if self.K == 1:
+            return np.zeros(self.n, int)
+        fits = self.fits(dst_labels)
+        U = self.base + self.config.cost_no_fit * (~fits & fits.any(0))
+        log.debug("assign: %d points, fit by one link %.0f%%, several %.0f%%, none %.0f%%; "
+                  "patches compared %.0f%%", self.n, 100 * np.mean(fits.sum(0) == 1),
+                  100 * np.mean(fits.sum(0) > 1), 100 * np.mean(fits.sum(0) == 0),
+                  100 * self.photo_share)
+        return potts_expansion(U, self.graph, self.config.smoothness,
+                               self.config.expansion_cycles)
 
 
 def label_points(src, src_normals, dst, transforms, residuals, match_src, match_labels, *,
+                 dst_labels: np.ndarray | None = None,
                  surface_src: _Surface | None = None, surface_dst: _Surface | None = None,
-                 config: AssignConfig = AssignConfig(), seed: int = 0) -> np.ndarray:
-    """Link label of every point of one configuration.
+                 config: AssignConfig = AssignConfig()) -> np.ndarray:
+    """Link label of every point of one configuration (one pass).
 
     Parameters
     ----------
@@ -233,6 +313,8 @@ def label_points(src, src_normals, dst, transforms, residuals, match_src, match_
     transforms : list of transforms (``apply``, ``rotation``) from src's frame to dst's, per link.
     residuals : per link, the match residual in dst's units.
     match_src, match_labels : segmented matches in src's frame and their links (-1: outlier).
+    dst_labels : (m,) int, optional
+        The other configuration's labels: then hypothesis k fits only on dst's points of link k.
     surface_src, surface_dst : cameras and z-buffers of the two configurations; without them only
         the geometric fit, the match prior and the smoothness decide.
 
@@ -240,56 +322,8 @@ def label_points(src, src_normals, dst, transforms, residuals, match_src, match_
     -------
     (n,) int, a link per point.
     """
-    K, n = len(transforms), len(src)
-    good = match_labels >= 0
-    d_match, i_match = cKDTree(match_src[good]).query(src)
-    nearest = match_labels[good][i_match]
-    if K == 1:
-        return np.zeros(n, int)
-    tree = cKDTree(dst)
-    spacing = float(np.median(tree.query(dst, k=2)[0][:, 1]))
-    floor = config.spacing_factor * spacing
-    fits = np.zeros((K, n), bool)
-    violations = np.zeros((K, n))
-    ncc = np.full((K, n), np.nan)
-    photo = surface_src is not None and surface_dst is not None
-    if photo:
-        vis_src, _ = surface_src.status(src, config.depth_tolerance, floor)
-        best_src = surface_src.best_view(vis_src, src, src_normals)
-        depth = np.full(n, np.nan)
-        for c in np.unique(best_src[best_src >= 0]):
-            m = best_src == c
-            depth[m] = surface_src.views[c].project(src[m])[2]
-        step = config.patch_step_px * depth / np.array(
-            [surface_src.views[max(c, 0)].K[0, 0] for c in best_src])
-        G = _patch_grid(src, src_normals, np.nan_to_num(step), config.patch_half)
-        patch_src = surface_src.sample(best_src, G)
-    for k, T in enumerate(transforms):
-        q = T.apply(src)
-        thr = max(config.residual_factor * float(residuals[k]), floor)
-        fits[k] = tree.query(q)[0] < thr
-        if photo:
-            vis, bad = surface_dst.status(q, config.depth_tolerance, floor)
-            violations[k] = bad.sum(0)
-            best = surface_dst.best_view(vis, q, src_normals @ T.rotation.T)
-            patch = surface_dst.sample(best, T.apply(G.reshape(-1, 3)).reshape(G.shape))
-            ok = (best_src >= 0) & (best >= 0)
-            ncc[k, ok] = _ncc(patch_src[ok], patch[ok])
-    U = config.cost_no_fit * (~fits & fits.any(0))
-    U = U + config.cost_violation * np.minimum(violations, config.violations_saturate) \
-        / config.violations_saturate
-    all_photo = np.isfinite(ncc).all(0)
-    U = U + np.where(all_photo, config.cost_photo * (1.0 - np.nan_to_num(ncc)) / 2.0, 0.0)
-    src_spacing = float(np.median(cKDTree(src).query(src, k=2)[0][:, 1]))
-    prior = config.cost_match * np.exp(-d_match / (config.match_reach * src_spacing))
-    U = U + prior[None, :] * (np.arange(K)[:, None] != nearest[None, :])
-    labels = _potts_icm(U, _graph(src, config.neighbours, config.neighbour_radius),
-                        config.smoothness, config.iterations, np.random.default_rng(seed))
-    log.debug("assign: %d points, fit by one link %.0f%%, several %.0f%%, none %.0f%%; "
-              "patches compared %.0f%%", n, 100 * np.mean(fits.sum(0) == 1),
-              100 * np.mean(fits.sum(0) > 1), 100 * np.mean(fits.sum(0) == 0),
-              100 * np.mean(all_photo))
-    return labels
+    return _Evidence(src, src_normals, dst, transforms, residuals, match_src, match_labels,
+                     surface_src, surface_dst, config).label(dst_labels)
 
 
 def assign_dense_to_links(dense_a, dense_b, points_a, points_b, segmentation, *,
@@ -297,7 +331,7 @@ def assign_dense_to_links(dense_a, dense_b, points_a, points_b, segmentation, *,
                           views_b: list[CameraView] | None = None,
                           occluders_a: np.ndarray | None = None,
                           occluders_b: np.ndarray | None = None,
-                          config: AssignConfig = AssignConfig(), seed: int = 0):
+                          config: AssignConfig = AssignConfig()):
     """Link label of every dense point of A and of B.
 
     ``dense_a``/``dense_b`` are :class:`artrecon.dense.DensePoints`; ``points_a``/``points_b``
@@ -305,13 +339,16 @@ def assign_dense_to_links(dense_a, dense_b, points_a, points_b, segmentation, *,
     configurations (``views_a``, ``views_b``), free-space and photo-consistency cues join the
     geometric fit; ``occluders_*`` are the points the z-buffers are built from (default: the
     dense points; pass the dense points before the background was removed, so that the table
-    and walls occlude too).
+    and walls occlude too). ``config.passes`` passes label both configurations, each after the
+    first fitting against the other's labels of the previous one. Deterministic.
 
     Returns
     -------
     labels_a : (len(dense_a),) int
     labels_b : (len(dense_b),) int
     """
+    if config.passes < 1:
+        raise ValueError(f"AssignConfig.passes must be >= 1, got {config.passes}")
     labels = np.asarray(segmentation.labels)
     Ts = list(segmentation.transforms)
     inv = [T.inverse() for T in Ts]
@@ -323,10 +360,11 @@ def assign_dense_to_links(dense_a, dense_b, points_a, points_b, segmentation, *,
         occ_b = dense_b.points if occluders_b is None else occluders_b
         surf_a = _Surface(views_a, occ_a, config.zbuffer_cell)
         surf_b = _Surface(views_b, occ_b, config.zbuffer_cell)
-    lab_a = label_points(dense_a.points, dense_a.normals, dense_b.points, Ts, rms, points_a,
-                         labels, surface_src=surf_a, surface_dst=surf_b, config=config,
-                         seed=seed)
-    lab_b = label_points(dense_b.points, dense_b.normals, dense_a.points, inv,
-                         rms / segmentation.scale, points_b, labels, surface_src=surf_b,
-                         surface_dst=surf_a, config=config, seed=seed)
+    ev_a = _Evidence(dense_a.points, dense_a.normals, dense_b.points, Ts, rms, points_a, labels,
+                     surf_a, surf_b, config)
+    ev_b = _Evidence(dense_b.points, dense_b.normals, dense_a.points, inv,
+                     rms / segmentation.scale, points_b, labels, surf_b, surf_a, config)
+    lab_a = lab_b = None
+    for _ in range(config.passes):
+        lab_a, lab_b = ev_a.label(lab_b), ev_b.label(lab_a)
     return lab_a, lab_b

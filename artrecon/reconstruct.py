@@ -472,7 +472,7 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     lab_a, lab_b = assign_dense_to_links(
         denses["a"], denses["b"], matches.points_a, matches.points_b, seg,
         views_a=views_from_sfm(sfms["a"]), views_b=views_from_sfm(sfms["b"]),
-        occluders_a=occluders["a"], occluders_b=occluders["b"], config=config.assign, seed=seed)
+        occluders_a=occluders["a"], occluders_b=occluders["b"], config=config.assign)
     links = links_from_labels(denses["a"], denses["b"], lab_a, lab_b, seg.transforms)
     (work / "links").mkdir(exist_ok=True)
     for k, lk in enumerate(links):

@@ -16,12 +16,13 @@ import pytest
 from artrecon.assign import (
     AssignConfig,
     CameraView,
-    _potts_icm,
+    _graph,
     _Surface,
     assign_dense_to_links,
     label_points,
 )
 from artrecon.dense import DensePoints
+from artrecon.potts import potts_energy, potts_expansion
 from artrecon.procrustes import Similarity
 
 F, W, H = 500.0, 320, 240
@@ -114,14 +115,19 @@ def sliding():
                 views_a=_views(0.0), views_b=_views(SLIDE))
 
 
-def test_sliding_floor_is_ambiguous_without_images(sliding):
-    """Without the images, most floor points fit both hypotheses: the geometry cannot decide
-    (this is what the photo cue is for)."""
+def test_sliding_floor_without_images(sliding):
+    """Without the images, every floor point away from its ends fits both hypotheses: point by
+    point (no smoothness) the geometry cannot decide. Where the floor left its old place
+    (and where it went) only the right hypothesis fits; the graph cut carries that across the
+    whole floor."""
     s = sliding
-    lab_a, _ = assign_dense_to_links(_dense(s["Pa"]), _dense(s["Pb"]), s["ma"], s["mb"], s["seg"])
+    args = (_dense(s["Pa"]), _dense(s["Pb"]), s["ma"], s["mb"], s["seg"])
     floor = s["la"] == 1
-    # the match prior alone pulls the floor near the base's matches to the base
+    lab_a, _ = assign_dense_to_links(*args, config=AssignConfig(smoothness=0.0))
     assert np.mean(lab_a[floor] == 1) < 0.9
+    lab_a, lab_b = assign_dense_to_links(*args)
+    assert np.mean(lab_a == s["la"]) > 0.97
+    assert np.mean(lab_b == s["lb"]) > 0.97
 
 
 def test_photo_consistency_decides_the_sliding_floor(sliding):
@@ -183,8 +189,75 @@ def test_potts_smoothing_removes_isolated_flips():
     U = np.stack([truth.astype(float), 1.0 - truth]) * 0.4
     flips = np.array([10, 20, 70, 85])
     U[:, flips] = U[::-1, flips]
-    from artrecon.assign import _graph
     G = _graph(X, 2, 1.5)
-    lab = _potts_icm(U, G, 0.5, 20, np.random.default_rng(0))
+    lab = potts_expansion(U, G, 0.5)
     assert (lab == truth).all()
     assert (U.argmin(0) != truth).sum() == len(flips)
+
+
+def test_potts_expansion_flips_a_whole_wrong_region():
+    """A run of 20 points whose unaries mildly prefer the wrong label, inside a chain that is
+    surely the other: per-point updates keep the run (each point would pay two cut edges on
+    its own), the graph cut flips it whole (2 cut edges for the whole run are dearer than the
+    run's unary cost)."""
+    n = 100
+    X = np.c_[np.arange(n) * 0.01, np.zeros(n), np.zeros(n)]
+    U = np.zeros((2, n))
+    U[1, :] = 1.0  # label 0 everywhere ...
+    U[0, 40:60], U[1, 40:60] = 0.2, 0.0  # ... but the run mildly prefers label 1
+    lab = potts_expansion(U, _graph(X, 2, 1.5), weight=0.5)
+    # energy of keeping the run: 2 cuts = 1.0; of flipping it: 20 * 0.2 = 4.0: keep it ...
+    assert (lab[40:60] == 1).all() and (lab[:40] == 0).all()
+    # ... unless the cut is dear: weight 3 -> 2 cuts cost 6 > 4: the whole run flips
+    lab = potts_expansion(U, _graph(X, 2, 1.5), weight=3.0)
+    assert (lab == 0).all()
+
+
+@pytest.mark.parametrize("K", [2, 3])
+def test_potts_expansion_against_brute_force(K):
+    """On small random graphs: the global optimum for two labels, within the factor 2 that
+    alpha-expansion guarantees for more (and no worse than the best unary labelling)."""
+    import itertools
+
+    from scipy.sparse import csr_matrix
+
+    rng = np.random.default_rng(K)
+    for _ in range(60):
+        n = 7
+        U = rng.random((K, n)) * 2
+        A = np.triu((rng.random((n, n)) < 0.4) * rng.uniform(0.5, 1.5, (n, n)), 1)
+        G = csr_matrix(A + A.T)
+        w = float(rng.random())
+        edges = (np.nonzero(A)[0], np.nonzero(A)[1], w * A[np.nonzero(A)])
+        lab = potts_expansion(U, G, w)
+        e = potts_energy(U, edges, lab)
+        opt = min(potts_energy(U, edges, np.array(lb))
+                  for lb in itertools.product(range(K), repeat=n))
+        assert e <= potts_energy(U, edges, U.argmin(0)) + 1e-9
+        if K == 2:
+            assert e == pytest.approx(opt, abs=1e-3)
+        else:
+            assert e <= 2 * opt + 1e-3
+
+
+def test_hypothesis_fits_only_on_its_own_link_once_the_other_side_is_labelled():
+    """A point of A whose "stayed" hypothesis lands on B's surface, but on points of the other
+    link (which moved in there), and whose "moved" hypothesis lands on that link's own points:
+    against B's whole surface both fit; against B's labels only "moved" does."""
+    n = 400
+    rng = np.random.default_rng(4)
+    src = np.c_[rng.uniform(0.0, 0.1, n), rng.uniform(-0.01, 0.01, n), np.zeros(n)]
+    stay = Similarity(np.eye(3), np.zeros(3), 1.0)
+    shift = Similarity(np.eye(3), np.array([0.2, 0.0, 0.0]), 1.0)
+    # B: link 1 where the shift puts the points, and more of link 1 where they were in A
+    dst = np.r_[shift.apply(src), src + [0.0, 0.0, 0.0005]]
+    dst_labels = np.ones(len(dst), int)
+    far_matches = np.array([[1.0, 0.0, 0.0], [1.0, 0.1, 0.0]])  # no prior near the points
+    normals = np.tile([0.0, 0.0, 1.0], (n, 1))
+    kw = dict(config=AssignConfig(cost_match=0.0))
+    whole = label_points(src, normals, dst, [stay, shift], [2e-4, 2e-4], far_matches,
+                         np.array([0, 1]), **kw)
+    own = label_points(src, normals, dst, [stay, shift], [2e-4, 2e-4], far_matches,
+                       np.array([0, 1]), dst_labels=dst_labels, **kw)
+    assert (whole == 0).all()  # a tie: both fit, the first link wins
+    assert (own == 1).all()
