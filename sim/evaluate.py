@@ -36,10 +36,15 @@ Ground truth used for scoring (never given to ``artrecon``):
   parent, and is scored as part of it, :func:`rigid_bodies`);
 - true surfaces: the object's visual meshes placed by MuJoCo at configuration A, sampled
   uniformly by area (:data:`SURFACE_SPACING_M`, fixed seed), each sample labelled with its link.
-  Segmentation accuracy gives every registered model point the link of the nearest sample within
-  :data:`SEGMENTATION_MAX_DISTANCE_M` (points farther away are off the object: reported as
-  ``off_surface_share`` and left out), then scores with :func:`sim.metrics.segmentation_accuracy`
-  (best one-to-one renaming of the model's links);
+  They score the model's accuracy and completeness;
+- link labels: ``ground_truth/labels`` and ``ground_truth/depth`` of each capture (rendered at the
+  true camera poses). Segmentation accuracy gives every model point the link that most of the
+  views holding it show (:func:`segmentation_truth`), in the configuration the point was seen in
+  (``Link.observed_in``: a point of B is placed where B's reconstruction saw it, through B's own
+  registration); points no view holds on the object are off it (``off_surface_share``, left
+  out). Then :func:`sim.metrics.segmentation_accuracy` (best one-to-one renaming of the model's
+  links). ``segmentation.accuracy_nearest_surface_at_a`` keeps the earlier figure (every point
+  at A, nearest true surface sample within :data:`SEGMENTATION_MAX_DISTANCE_M`);
 - the hidden side: samples not visible from the last captured view of A (outside the image, or
   behind the rendered depth of ``ground_truth/depth``);
 - camera poses: ``ground_truth/poses.json`` of the capture.

@@ -112,24 +112,20 @@ def test_state_error(results, name):
 
 
 #: Known misses of the segmentation gate, measured at 18 views per ring, seed 0 (issue 7 stays
-#: open on them). Strict: the day a scene passes, this list must shrink. (The drawer left it at
-#: 0.954 when dense points were labelled by free space and photo-consistency, artrecon.assign.)
-SEGMENTATION_KNOWN_MISSES = {
-    "pliers": "measured 0.923-0.928 < 0.95: errors lie within 1 cm of the table (stereo smear at "
-              "the silhouette) and on the stacked jaws, where the images support the assigned "
-              "link; joint figures pass",
-}
+#: open on them). Strict: the day a scene passes, this list must shrink. Empty since the figure is
+#: scored against the rendered link labels, each point where it was seen, and the dense points are
+#: labelled by graph cuts in two passes (pliers 0.963, was 0.923-0.928 with the nearest-surface
+#: figure and ICM; drawer 0.986, was 0.945-0.954; truck 0.997).
+SEGMENTATION_KNOWN_MISSES: dict[str, str] = {}
 
 
 #: A gate that passes in some runs and not others (SfM's run-to-run spread, or a capture plan
-#: that moved): the truck 0.959 and 0.958 in two runs, 0.908 in a third whose model had a
-#: spurious third link; the drawer on the threshold. Not strict, so both outcomes
-#: show in the summary (XPASS / XFAIL) without failing CI; issue 7 stays open on it.
+#: that moved). Not strict, so both outcomes show in the summary (XPASS / XFAIL) without failing
+#: CI; issue 7 stays open on it.
 SEGMENTATION_FLAKY = {
-    "truck": "0.959, 0.958 and 0.908 (a spurious third link) in three runs: unstable",
-    "drawer": "0.954, 0.954 and 0.945: on the threshold; the last after the view planner's IK "
-              "stopped wasting iterations and took a farther first ring (0.93 m, fill 0.65, was "
-              "0.82 m, 0.75), same segmentation of the matches",
+    "truck": "0.997 at c571d97; one earlier run of three (4140519) found a spurious third link "
+             "among the matches (0.908 then): the segmentation of the matches, not the dense "
+             "labelling, is what is unstable",
 }
 
 
