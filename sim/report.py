@@ -212,6 +212,17 @@ def markdown(results: dict) -> str:
                     f"({_f(model.get('hidden_share_of_surface'), 2)} of the surface): accuracy "
                     f"{_f(h.get('accuracy_median_mm'), 2)} mm, completeness "
                     f"{_f(h.get('completeness'), 3)}"]
+        seg = r.get("segmentation") or {}
+        if seg:
+            acc_in = seg.get("accuracy_in") or {}
+            scored = seg.get("scored_in") or {}
+            out += [f"- segmentation: {_f(r.get('segmentation_accuracy'), 3)} against the "
+                    f"rendered link labels (points seen in A: {_f(acc_in.get('a'), 3)} of "
+                    f"{scored.get('a', '-')}, in B: {_f(acc_in.get('b'), 3)} of "
+                    f"{scored.get('b', '-')}; {_f(seg.get('off_surface_share'), 3)} of the "
+                    f"points left out: no view, or most views, put them off the object); nearest "
+                    f"true surface at A: "
+                    f"{_f(seg.get('accuracy_nearest_surface_at_a'), 3)}"]
         out += tree_lines(r)
         man = r.get("manipulation")
         if man:
