@@ -309,7 +309,10 @@ def _results():
     scene = {"scene": "toy", "joints": [row], "segmentation_accuracy": 0.97,
              "manipulation": {"requested": 30.0, "achieved": 29.0, "peak_force_n": 3.0,
                               "unit": "deg", "relative_error": 1 / 30},
-             "timings_s": {"sfm": 1.0}, "error": None, "model": {"completeness": float("nan")}}
+             "timings_s": {"sfm": 1.0}, "error": None, "model": {"completeness": float("nan")},
+             "segmentation": {"off_surface_share": 0.1, "scored_in": {"a": 90, "b": 10},
+                              "accuracy_in": {"a": 0.98, "b": 0.9},
+                              "accuracy_nearest_surface_at_a": 0.95}}
     bad = {"scene": "broken", "joints": [], "segmentation_accuracy": None, "manipulation": None,
            "timings_s": {}, "error": "capture_a: CaptureError: unreachable"}
     return {"scenes": {"toy": scene, "broken": bad}, "meta": {"seed": 0, "gates": evaluate.GATES}}
@@ -327,6 +330,8 @@ def test_results_json_shape_and_report(tmp_path):
     assert back["scenes"]["broken"]["error"].startswith("capture_a")
     md = (tmp_path / "results.md").read_text()
     assert "| toy | hinge |" in md and "**Error** in stage" in md
+    assert ("- segmentation: 0.970 against the rendered link labels (points seen in A: 0.980 of "
+            "90, in B: 0.900 of 10; 0.100 of the points left out") in md
     table = report.terminal_table(res)
     assert "29.0/30.0 deg" in table and "ERROR capture_a" in table
 
