@@ -221,7 +221,7 @@ class _Evidence:
     """The cues for labelling the points of one configuration (src) against the other (dst).
 
     Everything but the geometric fit is computed once; the fit is redone per pass, against the
-    other configuration's labels once they exist (:meth:`unary`).
+    other configuration's labels once they exist (:meth:`label`).
     """
 
     def __init__(self, src, src_normals, dst, transforms, residuals, match_src, match_labels,
@@ -266,8 +266,8 @@ class _Evidence:
                 ncc[k, ok] = _ncc(patch_src[ok], patch[ok])
         U = config.cost_violation * np.minimum(violations, config.violations_saturate) \
             / config.violations_saturate
-        self.photo_share = float(np.mean(np.isfinite(ncc).all(0)))
         all_photo = np.isfinite(ncc).all(0)
+        self.photo_share = float(np.mean(all_photo))
         U = U + np.where(all_photo, config.cost_photo * (1.0 - np.nan_to_num(ncc)) / 2.0, 0.0)
         src_spacing = float(np.median(cKDTree(src).query(src, k=2)[0][:, 1]))
         prior = config.cost_match * np.exp(-d_match / (config.match_reach * src_spacing))

@@ -738,6 +738,8 @@ def score_scene(scene: Scene, registered, sfm_poses: dict, T_reg, set_a: Path,
     # the estimated transform)
     near = metrics.nearest_labels(P, samples, rigid_bodies(scene)[sample_link],
                                   SEGMENTATION_MAX_DISTANCE_M)
+    # each model link under its true name (the Hungarian pairing above; -1: none)
+    mapped = np.array([link_map.get(k, -1) for k in range(len(pts))])[labels_pred]
     out["segmentation"] = {
         "method": f"each point against the rendered link labels of the configuration it was "
                   f"seen in (majority of the views whose depth holds it within "
@@ -745,8 +747,7 @@ def score_scene(scene: Scene, registered, sfm_poses: dict, T_reg, set_a: Path,
         "points": int(len(P)), "off_surface_share": float(1.0 - on.mean()),
         "scored_in": {"a": int((on & (scored_in == 0)).sum()),
                       "b": int((on & (scored_in == 1)).sum())},
-        "accuracy_in": {c: (float(np.mean(np.array([link_map.get(k, -9) for k in
-                                                    labels_pred[m & on]]) == labels_true[m & on]))
+        "accuracy_in": {c: (float(np.mean(mapped[m & on] == labels_true[m & on]))
                             if (m & on).any() else None)
                         for c, m in (("a", scored_in == 0), ("b", scored_in == 1))},
         "accuracy_nearest_surface_at_a": (metrics.segmentation_accuracy(labels_pred, near)
