@@ -191,15 +191,23 @@ def build_kinematic_tree(
     points_a: np.ndarray,
     segmentation,
     config: JointConfig = JointConfig(),  # noqa: B008 (frozen, immutable)
+    link_points: list[np.ndarray] | None = None,
 ) -> KinematicTree:
     """Kinematic tree over the links, rooted at the largest link.
 
     Parameters
     ----------
     points_a : (n, 3) float
-        The matches' points in configuration A (those given to segment_links).
+        The matches' points in configuration A (those given to segment_links). They set the
+        scene size.
     segmentation : Segmentation
     config : JointConfig
+    link_points : list of (m_k, 3) float, optional
+        Each link's points in configuration A to measure the gaps, misfits and axis distances on:
+        the dense points assigned to the links (artrecon.reconstruct does so). The matches are
+        sparse where links meet (a long boom may carry no match near the hinge at its far end),
+        so their gaps are only an upper bound; the links' dense surfaces touch. Default: the
+        matches of each link.
 
     Returns
     -------
@@ -219,7 +227,16 @@ def build_kinematic_tree(
             f"build_kinematic_tree needs at least 2 links, the segmentation has {n_links}: the "
             "object moved as one rigid body. Move a joint between the two captures."
         )
-    pts = _link_points(points_a, segmentation)
+    if link_points is None:
+        pts = _link_points(points_a, segmentation)
+    else:
+        if len(link_points) != n_links:
+            raise ValueError(f"link_points has {len(link_points)} links, the segmentation "
+                             f"{n_links}")
+        pts = [_subsample(np.asarray(p, dtype=float).reshape(-1, 3)) for p in link_points]
+        empty = [k for k, p in enumerate(pts) if len(p) == 0]
+        if empty:
+            raise ReconstructionError(f"build_kinematic_tree: links {empty} have no points")
     size = tol.scene_size(points_a[segmentation.labels >= 0])
     trees = [cKDTree(p) for p in pts]
     gaps = np.zeros((n_links, n_links))
@@ -266,7 +283,7 @@ def axis_gap(motion: Similarity, points_i: np.ndarray, points_j: np.ndarray,
 
     A hinge joins two links through its pin, so its axis passes through (or next to) both. The
     distance of the axis line to a link is the k-th smallest distance of its points to the line
-    (k = tolerances.ADJACENCY_ROBUST_K, as for the gap between links). 0 for a prismatic motion
+    (the robust k of the gap between links). 0 for a prismatic motion
     (its axis position means nothing).
 
     Parameters
@@ -292,18 +309,35 @@ def axis_gap(motion: Similarity, points_i: np.ndarray, points_j: np.ndarray,
     for pts in (points_i, points_j):
         v = pts - p
         d = np.linalg.norm(v - np.outer(v @ u, u), axis=1)
-        k = min(tol.ADJACENCY_ROBUST_K, len(d)) - 1
+        k = _robust_k(len(d))
         out = max(out, float(np.partition(d, k)[k]))
     return out
 
 
+#: Dense link points measured per link in build_kinematic_tree (a fixed subsample above this).
+TREE_MAX_POINTS = 20000
+
+
+def _subsample(points: np.ndarray) -> np.ndarray:
+    if len(points) <= TREE_MAX_POINTS:
+        return points
+    idx = np.random.default_rng(0).choice(len(points), TREE_MAX_POINTS, replace=False)
+    return points[np.sort(idx)]
+
+
+def _robust_k(n: int) -> int:
+    """Index of the robust smallest of n distances: ADJACENCY_ROBUST_K for sparse matches, a
+    share (ADJACENCY_ROBUST_SHARE) of a dense link's points, whose labels have more strays."""
+    return min(max(tol.ADJACENCY_ROBUST_K, int(np.ceil(tol.ADJACENCY_ROBUST_SHARE * n))), n) - 1
+
+
 def _robust_gap(tree_j, pts_i, tree_i, pts_j) -> float:
     """Closest-point distance between two links, ignoring a few stray points (the k-th smallest
-    nearest-neighbour distance, k = tolerances.ADJACENCY_ROBUST_K, in both directions)."""
+    nearest-neighbour distance, k from `_robust_k`, in both directions)."""
     gaps = []
     for tree, pts in ((tree_j, pts_i), (tree_i, pts_j)):
         d, _ = tree.query(pts, k=1)
-        k = min(tol.ADJACENCY_ROBUST_K, len(d)) - 1
+        k = _robust_k(len(d))
         gaps.append(float(np.partition(d, k)[k]))
     return max(gaps)
 

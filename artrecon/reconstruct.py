@@ -3,7 +3,7 @@
 Stages (each its own module, plain data between them)::
 
     sfm (per configuration) -> dense (per configuration) -> object region -> features (A x B)
-        -> segment_links -> estimate_joints -> dense points assigned to links -> ArticulatedModel
+        -> segment_links -> dense points assigned to links -> estimate_joints -> ArticulatedModel
 
 The model frame is configuration A's SfM frame: arbitrary scale and placement when the
 cameras were found from the images alone (``model.scale_known`` is False), the frame of the given
@@ -445,11 +445,27 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     try:
         seg = segment_links(matches.points_a, matches.points_b, config.segmentation, seed=seed)
         seg = merge_equivalent_links(matches.points_a, matches.points_b, seg)
-        tree = build_kinematic_tree(matches.points_a, seg, config.joints)
+        if seg.n_links < 2:
+            raise DegenerateError(
+                f"the matches form {seg.n_links} rigid link(s), an articulated object needs at "
+                "least 2: the object moved as one rigid body. Move a joint between the two "
+                "captures.")
     except DegenerateError as exc:  # fewer than two links: one moving body, or other objects?
         raise blame_poses(explain_segmentation_failure(exc, matches.points_a, matches.points_b,
                                                        config.segmentation, seed),
                           sfms, config.sfm) from exc
+    timings["segment"] = time.perf_counter() - t
+    t = time.perf_counter()
+    lab_a, lab_b = assign_dense_to_links(
+        denses["a"], denses["b"], matches.points_a, matches.points_b, seg,
+        views_a=views_from_sfm(sfms["a"]), views_b=views_from_sfm(sfms["b"]),
+        occluders_a=occluders["a"], occluders_b=occluders["b"], config=config.assign)
+    links = links_from_labels(denses["a"], denses["b"], lab_a, lab_b, seg.transforms)
+    timings["assign"] = time.perf_counter() - t
+    t = time.perf_counter()
+    # Adjacency on the links' dense surfaces: the matches are sparse where links meet.
+    tree = build_kinematic_tree(matches.points_a, seg, config.joints,
+                                link_points=[lk.points for lk in links])
     root = static_link(seg, background.points_a, background.points_b)
     if root is None:
         log.warning("the background does not show which link is the base; the largest link "
@@ -463,21 +479,14 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
                                    config.confidence, seed)
     except WeakEvidenceError as exc:
         raise blame_poses(exc, sfms, config.sfm) from exc
-    timings["segment_joints"] = time.perf_counter() - t
+    timings["joints"] = time.perf_counter() - t
     np.savez(work / "matches.npz", points_a=matches.points_a, points_b=matches.points_b,
              point3D_ids_a=matches.point3D_ids_a, point3D_ids_b=matches.point3D_ids_b,
              votes=matches.votes, labels=seg.labels, background_a=background.points_a,
              background_b=background.points_b)
-    t = time.perf_counter()
-    lab_a, lab_b = assign_dense_to_links(
-        denses["a"], denses["b"], matches.points_a, matches.points_b, seg,
-        views_a=views_from_sfm(sfms["a"]), views_b=views_from_sfm(sfms["b"]),
-        occluders_a=occluders["a"], occluders_b=occluders["b"], config=config.assign)
-    links = links_from_labels(denses["a"], denses["b"], lab_a, lab_b, seg.transforms)
     (work / "links").mkdir(exist_ok=True)
     for k, lk in enumerate(links):
         write_ply(work / "links" / f"link_{k}.ply", lk.points, lk.normals, lk.colours)
-    timings["assign"] = time.perf_counter() - t
     metric = poses_a is not None and poses_b is not None
     model = ArticulatedModel(
         links=links, joints=joints, scale=1.0,

@@ -87,6 +87,10 @@ ADJACENCY_DISTANCE = 0.5
 #: not make far-apart links look adjacent.
 ADJACENCY_ROBUST_K = 3
 
+#: For many points (a link's dense points) the k above is this share of them instead, when larger:
+#: a few dozen mislabelled points of 20000 must not bridge two links either.
+ADJACENCY_ROBUST_SHARE = 0.002
+
 #: Weight of the "is this a single joint" misfit in the kinematic-tree edge cost (see
 #: joints.single_joint_misfit): a pair whose relative motion is a screw or a rotation+slide is not
 #: joined directly when a cleaner pair exists.

@@ -832,7 +832,7 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
         timings["sfm"] = rt.get("sfm_a", 0.0) + rt.get("sfm_b", 0.0)
         timings["dense"] = rt.get("dense_a", 0.0) + rt.get("dense_b", 0.0)
         timings["matching"] = rt.get("match", 0.0)
-        timings["segmentation_joints"] = rt.get("segment_joints", 0.0)
+        timings["segmentation_joints"] = rt.get("segment", 0.0) + rt.get("joints", 0.0)
         timings["assign_points"] = rt.get("assign", 0.0)
         result["reconstruct_timings_s"] = rt
         result["cached_stages"] += ["sfm", "dense", "matching", "segmentation_joints",

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 from synthetic import find_true_joint, joint_errors, make_object, match_links
 
@@ -168,6 +169,28 @@ def test_far_apart_links_are_not_jointed():
     far[child] += [20.0, 0.0, 0.0]
     with pytest.raises(ReconstructionError, match="adjacency_distance"):
         build_kinematic_tree(far, seg)
+
+
+def test_adjacency_is_measured_on_the_links_dense_points():
+    """A link whose matches stop short of the joint (the scraper truck's boom, matched far from
+    its blade hinge) is not adjacent by its matches, but its dense surface touches the other
+    link: given the links' dense points, the tree joins them; the gap is measured on them."""
+    obj = make_object(23, "pair", ("revolute",), 200, 0.0, 0.0)
+    seg, _ = _estimate(obj)
+    pa = obj.points_a
+    size = scene_size(pa[seg.labels >= 0])
+    d, _ = cKDTree(pa[seg.labels == 0]).query(pa)
+    keep = (seg.labels == 0) | ((seg.labels == 1) & (d > 0.6 * size))
+    assert 50 < np.sum(keep & (seg.labels == 1)) < np.sum(seg.labels == 1)
+    sparse = Segmentation(labels=seg.labels[keep], transforms=seg.transforms, scale=seg.scale)
+    with pytest.raises(ReconstructionError, match="adjacency_distance"):
+        build_kinematic_tree(pa[keep], sparse)
+    dense = [pa[seg.labels == k] for k in range(2)]
+    tree = build_kinematic_tree(pa[keep], sparse, link_points=dense)
+    assert tree.edges == [(0, 1)]
+    assert tree.gaps[0, 1] < 0.25 * size  # 200 random samples per link: not touching exactly
+    with pytest.raises(ValueError, match="link_points has 1 links"):
+        build_kinematic_tree(pa[keep], sparse, link_points=dense[:1])
 
 
 def test_planar_chain_tree_follows_the_hinges_not_the_nearest_link():
