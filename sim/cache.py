@@ -7,7 +7,8 @@ stage's own settings, the package version and the source code of the modules tha
 stage's output folder at ``ROOT/<stage>-<hash>/`` and builds it only when it is absent, so a second
 run of ``python -m sim.evaluate`` redoes only what changed. Folders are built under a temporary
 name beside their final place and renamed when complete: a folder that exists is whole (a run that
-is killed leaves at most a ``.tmp`` folder, which the next run ignores and removes).
+is killed leaves at most a work folder ``.<stage>-<hash>.tmp-<pid>-*``, which the next run ignores
+and removes; one whose process still runs, a concurrent run on the same folder, is left alone).
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ import tempfile
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
+
+from artrecon.io import make_work_dir
 
 log = logging.getLogger(__name__)
 
@@ -204,14 +207,19 @@ def cached_stage(root: str | os.PathLike, stage: str, inputs: dict,
         log.info("cache hit: %s", final)
         return final, json.loads(meta_path.read_text()), True
     root.mkdir(parents=True, exist_ok=True)
-    for stale in root.glob(f".{key}.*.tmp"):
-        shutil.rmtree(stale, ignore_errors=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{key}.", suffix=".tmp", dir=root))
+    for old in root.glob(f".{key}.*.tmp"):  # left by a killed run before work folders
+        shutil.rmtree(old, ignore_errors=True)  # carried their process id
+    # removes the work folders of killed runs, keeps those of a concurrent run building this
+    # same stage into the same folder now
+    tmp = make_work_dir(final)
     try:
         t0 = time.perf_counter()
         meta = dict(build(tmp) or {})
         meta.update(key=key, inputs=inputs, build_s=time.perf_counter() - t0)
         write_json_atomic(tmp / STAGE_FILE, meta)
+        if meta_path.is_file():  # a concurrent run finished the same stage first: keep its
+            shutil.rmtree(tmp, ignore_errors=True)  # folder (the same inputs, the same result)
+            return final, json.loads(meta_path.read_text()), True
         if final.exists():  # an incomplete folder (no stage.json) from an older layout
             shutil.rmtree(final)
         os.replace(tmp, final)
@@ -219,3 +227,4 @@ def cached_stage(root: str | os.PathLike, stage: str, inputs: dict,
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return final, meta, False
+

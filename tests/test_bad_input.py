@@ -8,6 +8,7 @@ configurations of one object, and interrupted runs.
 
 from __future__ import annotations
 
+import os
 import shutil
 import signal
 import subprocess
@@ -277,9 +278,12 @@ def test_evaluation_cache_ignores_and_removes_a_killed_build(tmp_path):
 
     inputs = {"x": 1}
     key = cache.stage_key("capture_a", inputs)
-    killed = tmp_path / f".{key}.abc123.tmp"  # what a SIGKILL during build leaves
-    killed.mkdir(parents=True)
-    (killed / "half.png").write_bytes(b"\x89PNG")
+    killed = tmp_path / f".{key}.tmp-999999999-abc"  # what a SIGKILL during build leaves
+    older = tmp_path / f".{key}.abc123.tmp"  # the same, before work folders carried a pid
+    live = tmp_path / f".{key}.tmp-{os.getppid()}-abc"  # a concurrent run, building now
+    for d in (killed, older, live):
+        d.mkdir(parents=True)
+        (d / "half.png").write_bytes(b"\x89PNG")
     built = []
 
     def build(folder):
@@ -289,7 +293,27 @@ def test_evaluation_cache_ignores_and_removes_a_killed_build(tmp_path):
 
     folder, _, hit = cache.cached_stage(tmp_path, "capture_a", inputs, build)
     assert not hit and built and (folder / "data.txt").read_text() == "whole"
-    assert not killed.exists()
+    assert not killed.exists() and not older.exists()
+    assert (live / "half.png").is_file()  # another live run's files are not removed under it
+
+
+def test_evaluation_cache_keeps_a_concurrent_runs_finished_stage(tmp_path):
+    """Two runs building the same stage at once: the second to finish keeps the first's folder
+    and throws its own work folder away (same inputs, same result), leaving no work folder."""
+    from sim import cache
+
+    inputs = {"x": 2}
+
+    def build(folder):
+        # the other run finishes while this one builds
+        cache.cached_stage(tmp_path, "capture_a", inputs,
+                           lambda f: (f / "data.txt").write_text("first") and {})
+        (folder / "data.txt").write_text("second")
+        return {}
+
+    folder, _, hit = cache.cached_stage(tmp_path, "capture_a", inputs, build)
+    assert hit and (folder / "data.txt").read_text() == "first"
+    assert [p.name for p in tmp_path.iterdir()] == [folder.name]
 
 
 def test_results_json_is_replaced_whole_or_not_at_all(tmp_path):
