@@ -170,7 +170,7 @@ def _link_evidence(k, pa, pb, transform: Similarity, n_all: int) -> dict:
 
 def joint_confidence(joint, points_a, points_b, segmentation, joint_config=None,
                      config: ConfidenceConfig = ConfidenceConfig(),  # noqa: B008 (frozen)
-                     seed: int = 0) -> dict:
+                     seed: int = 0, anchors: dict | None = None) -> dict:
     """Confidence record of one joint (see the module docstring); does not raise on weak evidence.
 
     Parameters
@@ -184,6 +184,9 @@ def joint_confidence(joint, points_a, points_b, segmentation, joint_config=None,
         The settings the joint was estimated with (its revolute/prismatic boundary).
     config : ConfidenceConfig
     seed : int
+    anchors : dict, optional
+        ``{link: (points_a, points_b)}``, further matches the link's transform was fitted to
+        (see :func:`assess_joints`); resampled with its own in the bootstrap.
 
     Returns
     -------
@@ -217,10 +220,15 @@ def joint_confidence(joint, points_a, points_b, segmentation, joint_config=None,
                      "rotation_deg": float(np.degrees(rotation_angle(rel.rotation))),
                      "noise": noise, "snr": float(snr)}
 
-    # Bootstrap of the estimator over the two links' inliers.
+    # Bootstrap of the estimator over the two links' inliers (and the matches anchoring them).
+    boot_idx = dict(idx)
+    for k, (xa, xb) in (anchors or {}).items():
+        if k in boot_idx and len(xa):
+            boot_idx[k] = np.concatenate([idx[k], len(pa_all) + np.arange(len(xa))])
+            pa_all, pb_all = np.vstack([pa_all, xa]), np.vstack([pb_all, xb])
     rec["bootstrap"] = _bootstrap(joint, pa_all, pb_all, idx, T, segmentation.scale,
                                   links[C]["extent"], joint_config, config.bootstrap_samples,
-                                  seed, joint_from_motion, relative_motion)
+                                  seed, joint_from_motion, relative_motion, fit_idx=boot_idx)
 
     reasons = []
     for k, role in ((P, "parent"), (C, "child")):
@@ -254,12 +262,15 @@ def joint_confidence(joint, points_a, points_b, segmentation, joint_config=None,
 
 
 def _bootstrap(joint, pa_all, pb_all, idx, T, scale, child_extent, joint_config, n_boot, seed,
-               joint_from_motion, relative_motion) -> dict:
+               joint_from_motion, relative_motion, fit_idx=None) -> dict:
+    """Resample each link's fit (over ``fit_idx``, default ``idx``: its members, and any matches
+    anchoring it) and re-estimate the joint (with the links' own points, ``idx``)."""
     rng = np.random.default_rng(seed)
     P, C = joint.parent, joint.child
+    fit_idx = idx if fit_idx is None else fit_idx
     fits = {}
     for k in (P, C):
-        members = idx[k]
+        members = fit_idx[k]
         if len(members) > BOOTSTRAP_MAX_POINTS:
             members = rng.choice(members, BOOTSTRAP_MAX_POINTS, replace=False)
         if len(members) < 3:
@@ -320,7 +331,7 @@ def _bootstrap(joint, pa_all, pb_all, idx, T, scale, child_extent, joint_config,
 
 def assess_joints(points_a, points_b, segmentation, joints, joint_config=None,
                   config: ConfidenceConfig = ConfidenceConfig(),  # noqa: B008 (frozen)
-                  seed: int = 0) -> dict:
+                  seed: int = 0, anchors: dict | None = None) -> dict:
     """Attach a confidence record to every joint (``joint.confidence``); refuse weak ones.
 
     Parameters
@@ -333,6 +344,11 @@ def assess_joints(points_a, points_b, segmentation, joints, joint_config=None,
     joint_config : JointConfig, optional
     config : ConfidenceConfig
     seed : int
+    anchors : dict, optional
+        ``{link: (points_a, points_b)}``: matches outside the segmentation that the link's
+        transform was also fitted to (the background, for the base:
+        :func:`artrecon.reconstruct.anchor_to_background`); the bootstrap resamples them with
+        the link's own.
 
     Returns
     -------
@@ -347,7 +363,8 @@ def assess_joints(points_a, points_b, segmentation, joints, joint_config=None,
     """
     records = []
     for j in joints:
-        rec = joint_confidence(j, points_a, points_b, segmentation, joint_config, config, seed)
+        rec = joint_confidence(j, points_a, points_b, segmentation, joint_config, config, seed,
+                               anchors)
         j.confidence = rec
         records.append(rec)
         b, m = rec["bootstrap"], rec["motion"]

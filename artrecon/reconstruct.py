@@ -36,7 +36,7 @@ import shutil
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -89,6 +89,13 @@ MIN_BACKGROUND_MATCHES = 20
 #: Background points (walls) are triangulated less precisely than the object, so no absolute
 #: inlier distance fits them; but a moving link displaces them by far more than their noise.
 BACKGROUND_MARGIN = 0.5
+#: Most refits of the base's transform with the background matches (see anchor_to_background;
+#: it stops when they no longer change).
+ANCHOR_ITERATIONS = 10
+#: The anchored transform must still fit the base's own matches: their RMS residual may grow to
+#: at most this factor of the base-only fit's, else the base moved against the room and the
+#: background is left out (measured: 0.9-1.1 on the bundled scenes, whose base stays put).
+ANCHOR_MAX_RMS_GROWTH = 1.5
 
 
 @dataclass(frozen=True)
@@ -273,6 +280,88 @@ def static_link(segmentation: Segmentation, background_a: np.ndarray,
     return best
 
 
+def anchor_to_background(points_a: np.ndarray, points_b: np.ndarray, seg: Segmentation,
+                         root: int, background_a: np.ndarray, background_b: np.ndarray
+                         ) -> tuple[Segmentation, tuple[np.ndarray, np.ndarray] | None]:
+    """Fit the base's motion to its matches and the background matches it carries along.
+
+    The base (the link that moves with the room, :func:`static_link`) and the room are one rigid
+    body across the two captures: the background matches it explains (within its inlier
+    distance) join its matches, and every link is refitted with the common scale. The base of a
+    pliers or scissors is long and thin, so its own matches leave its roll about its length
+    loosely held; the table and room around it pin its motion, and with it the frame the joints
+    are measured in (the relative motion parent^-1 child). Starting from the base's own fit, each
+    round keeps the background matches within the larger of the base's inlier distance and their
+    median residual and refits (up to :data:`ANCHOR_ITERATIONS` rounds); the last fit takes those
+    within the inlier distance.
+
+    Parameters
+    ----------
+    points_a, points_b : (n, 3) float
+        The segmented matches.
+    seg : Segmentation
+    root : int
+        The base link.
+    background_a, background_b : (m, 3) float
+        Matched background points of A and B.
+
+    Returns
+    -------
+    seg : Segmentation
+        With refitted transforms, scale and RMS residuals; ``seg`` itself when fewer than
+        :data:`MIN_BACKGROUND_MATCHES` background matches fit the base, or when the refit no
+        longer fits the base's own matches (RMS above :data:`ANCHOR_MAX_RMS_GROWTH` x): the base
+        then moved against the room.
+    anchor : (background_a, background_b) or None
+        The background matches that joined the base (for the confidence's bootstrap).
+    """
+    from artrecon.procrustes import shared_scale_transforms
+
+    labels = np.asarray(seg.labels)
+    groups = [(points_a[labels == k], points_b[labels == k]) for k in range(seg.n_links)]
+    own_a, own_b = groups[root]
+    rms_own = _rms(seg.transforms[root], own_a, own_b)
+    thr = seg.thresholds[root] if seg.thresholds else 3.0 * rms_own
+    def fit(used):
+        anchored = list(groups)
+        anchored[root] = (np.vstack([own_a, background_a[used]]),
+                          np.vstack([own_b, background_b[used]]))
+        return shared_scale_transforms(anchored)
+
+    def residuals(transforms):
+        return np.linalg.norm(transforms[root].apply(background_a) - background_b, axis=1)
+
+    # From the base's own fit, which may be off by a degree far from its matches, towards the
+    # room's motion: each round keeps the background matches within the larger of the base's
+    # inlier distance and their median residual, and refits.
+    transforms, used = list(seg.transforms), None
+    for _ in range(ANCHOR_ITERATIONS):
+        res = residuals(transforms)
+        fits = res < max(thr, float(np.median(res)))
+        if used is not None and np.array_equal(fits, used):
+            break
+        used = fits
+        transforms = fit(used)
+    used = residuals(transforms) < thr
+    if used.sum() < MIN_BACKGROUND_MATCHES:
+        log.info("base link %d: %d background matches within its inlier distance (need %d); "
+                 "its motion is fitted to its own matches", root, used.sum(),
+                 MIN_BACKGROUND_MATCHES)
+        return seg, None
+    transforms = fit(used)
+    rms_anchored = _rms(transforms[root], own_a, own_b)
+    if rms_anchored > ANCHOR_MAX_RMS_GROWTH * rms_own:
+        log.warning("base link %d: fitted with the background its matches' residual grows from "
+                    "%.3g to %.3g RMS; the base moved against the room, its motion is fitted to "
+                    "its own matches", root, rms_own, rms_anchored)
+        return seg, None
+    log.info("base link %d anchored to %d background matches (its matches' RMS %.3g -> %.3g)",
+             root, used.sum(), rms_own, rms_anchored)
+    rms = [_rms(T, a, b) for T, (a, b) in zip(transforms, groups, strict=True)]
+    return replace(seg, transforms=transforms, scale=float(transforms[0].scale), rms=rms), \
+        (background_a[used], background_b[used])
+
+
 def reroot(tree: KinematicTree, root: int) -> KinematicTree:
     """The same tree with another root (edges re-oriented, breadth-first from the new root)."""
     n = len(tree.parents)
@@ -454,6 +543,12 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
         raise blame_poses(explain_segmentation_failure(exc, matches.points_a, matches.points_b,
                                                        config.segmentation, seed),
                           sfms, config.sfm) from exc
+    # The base moves with the room: its motion is fitted to the background matches too.
+    root = static_link(seg, background.points_a, background.points_b)
+    anchor = None
+    if root is not None:
+        seg, anchor = anchor_to_background(matches.points_a, matches.points_b, seg, root,
+                                           background.points_a, background.points_b)
     timings["segment"] = time.perf_counter() - t
     t = time.perf_counter()
     lab_a, lab_b = assign_dense_to_links(
@@ -466,7 +561,6 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     # Adjacency on the links' dense surfaces: the matches are sparse where links meet.
     tree = build_kinematic_tree(matches.points_a, seg, config.joints,
                                 link_points=[lk.points for lk in links])
-    root = static_link(seg, background.points_a, background.points_b)
     if root is None:
         log.warning("the background does not show which link is the base; the largest link "
                     "(%d) is taken as the root", tree.root)
@@ -476,7 +570,8 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     # Evidence per joint (Joint.confidence); raises WeakEvidenceError rather than a wrong axis.
     try:
         confidence = assess_joints(matches.points_a, matches.points_b, seg, joints, config.joints,
-                                   config.confidence, seed)
+                                   config.confidence, seed,
+                                   anchors={root: anchor} if anchor is not None else None)
     except WeakEvidenceError as exc:
         raise blame_poses(exc, sfms, config.sfm) from exc
     timings["joints"] = time.perf_counter() - t
@@ -508,6 +603,7 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
             "matches": len(matches), "match_outliers": int((seg.labels < 0).sum()),
             "background_matches": len(background),
             "root_from": "background" if root is not None else "largest link",
+            "root_background_matches": 0 if anchor is None else len(anchor[0]),
             "link_matches": seg.sizes.tolist(),
             "confidence": confidence,
             "dense_unassigned": {"a": int((lab_a < 0).sum()), "b": int((lab_b < 0).sum())},

@@ -180,3 +180,67 @@ def test_merge_joins_a_link_whose_motion_is_within_the_noise():
     out = merge_equivalent_links(pa, pb, seg)
     assert out.n_links == 2
     assert np.all(out.labels[:400] == 0) and np.all(out.labels[400:] == 1)
+
+
+def _thin_base_and_room(seed, room_shift=(0.0, 0.0, 0.0)):
+    """A long, thin base (a pliers' half: 20 cm x 1 cm x 2 mm, 40 matches) and a moving link,
+    both with 1 mm of match noise, the room around them (a table and walls, 400 matches) still,
+    and a frame change between A and B; the room shifted by ``room_shift`` if the base moved."""
+    from scipy.spatial.transform import Rotation
+
+    from artrecon.procrustes import shared_scale_transforms
+
+    rng = np.random.default_rng(seed)
+    base = rng.uniform([-0.1, -0.005, 0.0], [0.1, 0.005, 0.002], (40, 3))
+    child = rng.uniform([-0.02, 0.0, 0.0], [0.02, 0.1, 0.02], (60, 3)) + [0.1, 0.0, 0.0]
+    room = rng.uniform([-0.6, -0.6, -0.02], [0.6, 0.6, 0.4], (400, 3))
+    frame = Similarity(Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix(), [0.3, 0.1, -0.2], 1.7)
+    hinge = Rotation.from_rotvec([0.0, 0.0, 0.5]).as_matrix()
+    pivot = np.array([0.1, 0.0, 0.0])
+    moved = (child - pivot) @ hinge.T + pivot
+    noise = 0.001 / np.sqrt(3)
+    pa = np.vstack([base, child]) + rng.normal(0, noise, (100, 3))
+    pb = frame.apply(np.vstack([base, moved]) + rng.normal(0, noise, (100, 3)))
+    room_b = frame.apply(room + np.asarray(room_shift) + rng.normal(0, noise, room.shape))
+    room_a = room + rng.normal(0, noise, room.shape)
+    # the segmentation as segment_links leaves it: link 0 the larger (the moving one), each link
+    # fitted to its own matches with a common scale, inlier distance 3 x its RMS residual
+    labels = np.r_[np.ones(40), np.zeros(60)].astype(int)
+    transforms = shared_scale_transforms([(pa[labels == k], pb[labels == k]) for k in (0, 1)])
+    rms = [float(np.sqrt(np.mean(np.sum((T.apply(pa[labels == k]) - pb[labels == k]) ** 2, 1))))
+           for k, T in enumerate(transforms)]
+    seg = Segmentation(labels=labels, transforms=transforms, scale=transforms[0].scale,
+                       thresholds=[3 * r for r in rms], rms=rms, scene_size_a=0.2,
+                       scene_size_b=0.2 * frame.scale)
+    return pa, pb, seg, room_a, room_b, frame
+
+
+def test_the_base_is_anchored_to_the_room_it_stays_with():
+    """The base's motion fitted with the background it carries is nearer its true motion (the
+    frame change) than from its own 40 matches on a thin strip."""
+    from artrecon.procrustes import rotation_angle
+    from artrecon.reconstruct import anchor_to_background, static_link
+
+    errors = []
+    for seed in range(5):
+        pa, pb, seg, room_a, room_b, frame = _thin_base_and_room(seed)
+        root = static_link(seg, room_a, room_b)
+        assert root == 1
+        anchored, anchor = anchor_to_background(pa, pb, seg, root, room_a, room_b)
+        assert anchor is not None and len(anchor[0]) > 300
+        assert anchored.labels is seg.labels and anchored.n_links == seg.n_links
+        errors.append([np.degrees(rotation_angle(s.transforms[root].rotation.T @ frame.rotation))
+                       for s in (seg, anchored)])
+        assert abs(anchored.scale / frame.scale - 1) < abs(seg.scale / frame.scale - 1) + 1e-4
+    errors = np.array(errors)
+    assert np.all(errors[:, 1] < 0.1) and errors[:, 1].mean() < 0.3 * errors[:, 0].mean(), errors
+
+
+def test_a_base_that_moved_against_the_room_is_not_anchored():
+    """The object was pushed 2 cm across the table between the captures: the room no longer
+    moves with the base, and the base keeps the fit of its own matches."""
+    from artrecon.reconstruct import anchor_to_background
+
+    pa, pb, seg, room_a, room_b, _ = _thin_base_and_room(0, room_shift=np.array([0.02, 0, 0]))
+    anchored, anchor = anchor_to_background(pa, pb, seg, 1, room_a, room_b)
+    assert anchor is None and anchored is seg
