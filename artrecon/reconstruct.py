@@ -322,6 +322,7 @@ def anchor_to_background(points_a: np.ndarray, points_b: np.ndarray, seg: Segmen
     own_a, own_b = groups[root]
     rms_own = _rms(seg.transforms[root], own_a, own_b)
     thr = seg.thresholds[root] if seg.thresholds else 3.0 * rms_own
+
     def fit(used):
         anchored = list(groups)
         anchored[root] = (np.vstack([own_a, background_a[used]]),
@@ -360,6 +361,28 @@ def anchor_to_background(points_a: np.ndarray, points_b: np.ndarray, seg: Segmen
     rms = [_rms(T, a, b) for T, (a, b) in zip(transforms, groups, strict=True)]
     return replace(seg, transforms=transforms, scale=float(transforms[0].scale), rms=rms), \
         (background_a[used], background_b[used])
+
+
+def anchor_base(points_a: np.ndarray, points_b: np.ndarray, seg: Segmentation,
+                background_a: np.ndarray, background_b: np.ndarray
+                ) -> tuple[Segmentation, int | None, dict | None]:
+    """The base (:func:`static_link`) and the segmentation with the base's motion fitted to the
+    background too (:func:`anchor_to_background`), as the pipeline runs them after segmenting.
+
+    Returns
+    -------
+    seg : Segmentation
+    root : int or None
+        The base, None when the background does not show it.
+    anchors : dict or None
+        ``{root: (background_a, background_b)}`` for :func:`artrecon.confidence.assess_joints`,
+        None when the base was not anchored.
+    """
+    root = static_link(seg, background_a, background_b)
+    if root is None:
+        return seg, None, None
+    seg, anchor = anchor_to_background(points_a, points_b, seg, root, background_a, background_b)
+    return seg, root, None if anchor is None else {root: anchor}
 
 
 def reroot(tree: KinematicTree, root: int) -> KinematicTree:
@@ -544,11 +567,8 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
                                                        config.segmentation, seed),
                           sfms, config.sfm) from exc
     # The base moves with the room: its motion is fitted to the background matches too.
-    root = static_link(seg, background.points_a, background.points_b)
-    anchor = None
-    if root is not None:
-        seg, anchor = anchor_to_background(matches.points_a, matches.points_b, seg, root,
-                                           background.points_a, background.points_b)
+    seg, root, anchors = anchor_base(matches.points_a, matches.points_b, seg,
+                                     background.points_a, background.points_b)
     timings["segment"] = time.perf_counter() - t
     t = time.perf_counter()
     lab_a, lab_b = assign_dense_to_links(
@@ -570,8 +590,7 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     # Evidence per joint (Joint.confidence); raises WeakEvidenceError rather than a wrong axis.
     try:
         confidence = assess_joints(matches.points_a, matches.points_b, seg, joints, config.joints,
-                                   config.confidence, seed,
-                                   anchors={root: anchor} if anchor is not None else None)
+                                   config.confidence, seed, anchors)
     except WeakEvidenceError as exc:
         raise blame_poses(exc, sfms, config.sfm) from exc
     timings["joints"] = time.perf_counter() - t
@@ -603,7 +622,7 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
             "matches": len(matches), "match_outliers": int((seg.labels < 0).sum()),
             "background_matches": len(background),
             "root_from": "background" if root is not None else "largest link",
-            "root_background_matches": 0 if anchor is None else len(anchor[0]),
+            "root_background_matches": len(anchors[root][0]) if anchors else 0,
             "link_matches": seg.sizes.tolist(),
             "confidence": confidence,
             "dense_unassigned": {"a": int((lab_a < 0).sum()), "b": int((lab_b < 0).sum())},

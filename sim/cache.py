@@ -227,4 +227,3 @@ def cached_stage(root: str | os.PathLike, stage: str, inputs: dict,
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return final, meta, False
-

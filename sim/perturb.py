@@ -408,9 +408,8 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0) ->
     after matching (segment_links, merge, root from the background and the base anchored to it,
     tree, estimate_joints, the per-joint confidence check that refuses weak joints, dense points
     to links -- geometrically: the image cues of the pipeline's assignment need its SfM images)
-    and writes
-    ``out_dir/model.json`` and ``out_dir/matches.npz``; ``out_dir/a`` and ``out_dir/b`` link to
-    the SfM models. Raises what those steps raise (a refusal included).
+    and writes ``out_dir/model.json`` and ``out_dir/matches.npz``; ``out_dir/a`` and
+    ``out_dir/b`` link to the SfM models. Raises what those steps raise (a refusal included).
     """
     from artrecon.confidence import assess_joints
     from artrecon.dense import DensePoints
@@ -418,12 +417,11 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0) ->
     from artrecon.model import ArticulatedModel
     from artrecon.reconstruct import (
         ReconstructConfig,
-        anchor_to_background,
+        anchor_base,
         assign_dense_to_links,
         links_from_labels,
         merge_equivalent_links,
         reroot,
-        static_link,
     )
     from artrecon.segment import segment_links
 
@@ -434,18 +432,14 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0) ->
     pb, wrong = corrupt_matches(m["points_b"], fraction, np.random.default_rng([seed, 99]))
     seg = segment_links(pa, pb, config.segmentation, seed=seed)
     seg = merge_equivalent_links(pa, pb, seg)
-    root = static_link(seg, m["background_a"], m["background_b"])
-    anchor = None
-    if root is not None:  # the base's motion fitted with the room's, as the pipeline does
-        seg, anchor = anchor_to_background(pa, pb, seg, root, m["background_a"],
-                                           m["background_b"])
+    seg, root, anchors = anchor_base(pa, pb, seg, m["background_a"], m["background_b"])
     tree = build_kinematic_tree(pa, seg, config.joints)
     if root is not None and root != tree.root:
         tree = reroot(tree, root)
     joints = estimate_joints(pa, pb, seg, config.joints, tree=tree)
     # the pipeline's own evidence check: weak joints are refused (WeakEvidenceError)
     confidence = assess_joints(pa, pb, seg, joints, config.joints, config.confidence, seed,
-                               anchors={root: anchor} if anchor is not None else None)
+                               anchors)
     dense = {}
     for c in ("a", "b"):
         pts, nrm, col = read_ply(model_dir / c / "dense.ply")
