@@ -385,6 +385,98 @@ def anchor_base(points_a: np.ndarray, points_b: np.ndarray, seg: Segmentation,
     return seg, root, None if anchor is None else {root: anchor}
 
 
+@dataclass
+class Articulation:
+    """What :func:`articulate` finds in the matches: links, tree, joints and their evidence."""
+
+    segmentation: Segmentation
+    """The matches' links, the base's motion anchored to the background."""
+    root: int | None
+    """The base (the link the background moves with), None when the background does not show it
+    (the tree's root is then the largest link)."""
+    anchors: dict | None
+    """``{root: (background_a, background_b)}``: the background matches the base was fitted to."""
+    labels_a: np.ndarray
+    """Link of each dense point of A (-1: none)."""
+    labels_b: np.ndarray
+    """Link of each dense point of B."""
+    links: list[Link]
+    tree: KinematicTree
+    joints: list
+    confidence: list
+    """Per joint, :func:`artrecon.confidence.assess_joints`' record."""
+    timings: dict[str, float]
+
+
+def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndarray,
+               background_b: np.ndarray, dense_a, dense_b, config: ReconstructConfig, seed: int,
+               *, views_a=None, views_b=None, occluders_a=None, occluders_b=None
+               ) -> Articulation:
+    """Every step after matching: segment the matches into links (method step 2), anchor the
+    base to the background, label the dense points with links, build the kinematic tree on the
+    links' dense points, estimate each joint (step 3) and check its evidence.
+
+    The one place these steps and their order live: the pipeline and the robustness harness
+    (sim.perturb.resegment, which re-runs them on corrupted matches) both call it.
+
+    Parameters
+    ----------
+    points_a, points_b : (n, 3)
+        The object's cross-configuration matches (A's and B's frames).
+    background_a, background_b : (m, 3)
+        Matches on the static background (may be empty).
+    dense_a, dense_b : artrecon.dense.DensePoints
+    views_a, views_b, occluders_a, occluders_b :
+        The image cues of the dense labelling (artrecon.assign); without them the labelling is
+        geometric only.
+
+    Raises
+    ------
+    DegenerateError
+        Fewer than two links (explained: no motion, one rigid body, chance pairings ...).
+    WeakEvidenceError
+        A joint's evidence is too weak for its axis (artrecon.confidence).
+    """
+    timings: dict[str, float] = {}
+    t = time.perf_counter()
+    try:
+        seg = segment_links(points_a, points_b, config.segmentation, seed=seed)
+        seg = merge_equivalent_links(points_a, points_b, seg)
+        if seg.n_links < 2:
+            raise DegenerateError(
+                f"the matches form {seg.n_links} rigid link(s), an articulated object needs at "
+                "least 2: the object moved as one rigid body. Move a joint between the two "
+                "captures.")
+    except DegenerateError as exc:  # fewer than two links: one moving body, or other objects?
+        raise explain_segmentation_failure(exc, points_a, points_b, config.segmentation,
+                                           seed) from exc
+    # The base moves with the room: its motion is fitted to the background matches too.
+    seg, root, anchors = anchor_base(points_a, points_b, seg, background_a, background_b)
+    timings["segment"] = time.perf_counter() - t
+    t = time.perf_counter()
+    lab_a, lab_b = assign_dense_to_links(
+        dense_a, dense_b, points_a, points_b, seg, views_a=views_a, views_b=views_b,
+        occluders_a=occluders_a, occluders_b=occluders_b, config=config.assign)
+    links = links_from_labels(dense_a, dense_b, lab_a, lab_b, seg.transforms)
+    timings["assign"] = time.perf_counter() - t
+    t = time.perf_counter()
+    # Adjacency on the links' dense surfaces: the matches are sparse where links meet.
+    tree = build_kinematic_tree(points_a, seg, config.joints,
+                                link_points=[lk.points for lk in links])
+    if root is None:
+        log.warning("the background does not show which link is the base; the largest link "
+                    "(%d) is taken as the root", tree.root)
+    elif root != tree.root:
+        tree = reroot(tree, root)
+    joints = estimate_joints(points_a, points_b, seg, config.joints, tree=tree)
+    # Evidence per joint (Joint.confidence); raises WeakEvidenceError rather than a wrong axis.
+    confidence = assess_joints(points_a, points_b, seg, joints, config.joints, config.confidence,
+                               seed, anchors)
+    timings["joints"] = time.perf_counter() - t
+    return Articulation(seg, root, anchors, lab_a, lab_b, links, tree, joints, confidence,
+                        timings)
+
+
 def reroot(tree: KinematicTree, root: int) -> KinematicTree:
     """The same tree with another root (edges re-oriented, breadth-first from the new root)."""
     n = len(tree.parents)
@@ -553,47 +645,16 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     background = matches.subset(~in_a & ~in_b)
     matches = matches.subset(in_a & in_b)
     timings["match"] = time.perf_counter() - t
-    t = time.perf_counter()
     try:
-        seg = segment_links(matches.points_a, matches.points_b, config.segmentation, seed=seed)
-        seg = merge_equivalent_links(matches.points_a, matches.points_b, seg)
-        if seg.n_links < 2:
-            raise DegenerateError(
-                f"the matches form {seg.n_links} rigid link(s), an articulated object needs at "
-                "least 2: the object moved as one rigid body. Move a joint between the two "
-                "captures.")
-    except DegenerateError as exc:  # fewer than two links: one moving body, or other objects?
-        raise blame_poses(explain_segmentation_failure(exc, matches.points_a, matches.points_b,
-                                                       config.segmentation, seed),
-                          sfms, config.sfm) from exc
-    # The base moves with the room: its motion is fitted to the background matches too.
-    seg, root, anchors = anchor_base(matches.points_a, matches.points_b, seg,
-                                     background.points_a, background.points_b)
-    timings["segment"] = time.perf_counter() - t
-    t = time.perf_counter()
-    lab_a, lab_b = assign_dense_to_links(
-        denses["a"], denses["b"], matches.points_a, matches.points_b, seg,
-        views_a=views_from_sfm(sfms["a"]), views_b=views_from_sfm(sfms["b"]),
-        occluders_a=occluders["a"], occluders_b=occluders["b"], config=config.assign)
-    links = links_from_labels(denses["a"], denses["b"], lab_a, lab_b, seg.transforms)
-    timings["assign"] = time.perf_counter() - t
-    t = time.perf_counter()
-    # Adjacency on the links' dense surfaces: the matches are sparse where links meet.
-    tree = build_kinematic_tree(matches.points_a, seg, config.joints,
-                                link_points=[lk.points for lk in links])
-    if root is None:
-        log.warning("the background does not show which link is the base; the largest link "
-                    "(%d) is taken as the root", tree.root)
-    elif root != tree.root:
-        tree = reroot(tree, root)
-    joints = estimate_joints(matches.points_a, matches.points_b, seg, config.joints, tree=tree)
-    # Evidence per joint (Joint.confidence); raises WeakEvidenceError rather than a wrong axis.
-    try:
-        confidence = assess_joints(matches.points_a, matches.points_b, seg, joints, config.joints,
-                                   config.confidence, seed, anchors)
-    except WeakEvidenceError as exc:
+        art = articulate(matches.points_a, matches.points_b, background.points_a,
+                         background.points_b, denses["a"], denses["b"], config, seed,
+                         views_a=views_from_sfm(sfms["a"]), views_b=views_from_sfm(sfms["b"]),
+                         occluders_a=occluders["a"], occluders_b=occluders["b"])
+    except (DegenerateError, WeakEvidenceError) as exc:
+        # slightly wrong given poses show up as matches that do not move together
         raise blame_poses(exc, sfms, config.sfm) from exc
-    timings["joints"] = time.perf_counter() - t
+    timings.update(art.timings)
+    seg, links, root = art.segmentation, art.links, art.root
     np.savez(work / "matches.npz", points_a=matches.points_a, points_b=matches.points_b,
              point3D_ids_a=matches.point3D_ids_a, point3D_ids_b=matches.point3D_ids_b,
              votes=matches.votes, labels=seg.labels, background_a=background.points_a,
@@ -603,9 +664,9 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
         write_ply(work / "links" / f"link_{k}.ply", lk.points, lk.normals, lk.colours)
     metric = poses_a is not None and poses_b is not None
     model = ArticulatedModel(
-        links=links, joints=joints, scale=1.0,
+        links=links, joints=art.joints, scale=1.0,
         frames={"T_world_model": np.eye(4)} if metric else {},
-        root=tree.root, scale_a_to_b=float(seg.scale), scale_known=metric,
+        root=art.tree.root, scale_a_to_b=float(seg.scale), scale_known=metric,
         metadata={
             "artrecon_version": __version__, "seed": seed,
             "images_a": str(set_a.root), "images_b": str(set_b.root),
@@ -622,14 +683,15 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
             "matches": len(matches), "match_outliers": int((seg.labels < 0).sum()),
             "background_matches": len(background),
             "root_from": "background" if root is not None else "largest link",
-            "root_background_matches": len(anchors[root][0]) if anchors else 0,
+            "root_background_matches": len(art.anchors[root][0]) if art.anchors else 0,
             "link_matches": seg.sizes.tolist(),
-            "confidence": confidence,
-            "dense_unassigned": {"a": int((lab_a < 0).sum()), "b": int((lab_b < 0).sum())},
+            "confidence": art.confidence,
+            "dense_unassigned": {"a": int((art.labels_a < 0).sum()),
+                                 "b": int((art.labels_b < 0).sum())},
             "config": _jsonable(asdict(config)),
             "timings": timings,
         })
-    log.info("model: %d links, %d joints, timings %s", len(links), len(joints),
+    log.info("model: %d links, %d joints, timings %s", len(links), len(art.joints),
              {k: round(v, 1) for k, v in timings.items()})
     return model
 

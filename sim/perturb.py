@@ -404,48 +404,28 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0) ->
     """Redo segmentation, joints and link points of a reconstruction with wrong matches.
 
     Reads ``model_dir``'s ``matches.npz`` and dense points, corrupts the object matches
-    (:func:`corrupt_matches`), runs the same steps as :func:`artrecon.reconstruct.reconstruct`
-    after matching (segment_links, merge, root from the background and the base anchored to it,
-    tree, estimate_joints, the per-joint confidence check that refuses weak joints, dense points
-    to links -- geometrically: the image cues of the pipeline's assignment need its SfM images)
-    and writes ``out_dir/model.json`` and ``out_dir/matches.npz``; ``out_dir/a`` and
-    ``out_dir/b`` link to the SfM models. Raises what those steps raise (a refusal included).
+    (:func:`corrupt_matches`), runs the pipeline's own steps after matching on them
+    (:func:`artrecon.reconstruct.articulate`: segmentation, the base anchored to the background,
+    dense labelling -- geometric only: the image cues need the SfM images --, tree, joints and
+    the confidence check that refuses weak joints) and writes ``out_dir/model.json`` and
+    ``out_dir/matches.npz``; ``out_dir/a`` and ``out_dir/b`` link to the SfM models. Raises what
+    those steps raise (a refusal included).
     """
-    from artrecon.confidence import assess_joints
     from artrecon.dense import DensePoints
-    from artrecon.joints import build_kinematic_tree, estimate_joints
     from artrecon.model import ArticulatedModel
-    from artrecon.reconstruct import (
-        ReconstructConfig,
-        anchor_base,
-        assign_dense_to_links,
-        links_from_labels,
-        merge_equivalent_links,
-        reroot,
-    )
-    from artrecon.segment import segment_links
+    from artrecon.reconstruct import ReconstructConfig, articulate
 
     model_dir, out_dir = Path(model_dir), Path(out_dir)
-    config = ReconstructConfig()
     m = dict(np.load(model_dir / "matches.npz"))
     pa = m["points_a"]
     pb, wrong = corrupt_matches(m["points_b"], fraction, np.random.default_rng([seed, 99]))
-    seg = segment_links(pa, pb, config.segmentation, seed=seed)
-    seg = merge_equivalent_links(pa, pb, seg)
-    seg, root, anchors = anchor_base(pa, pb, seg, m["background_a"], m["background_b"])
-    tree = build_kinematic_tree(pa, seg, config.joints)
-    if root is not None and root != tree.root:
-        tree = reroot(tree, root)
-    joints = estimate_joints(pa, pb, seg, config.joints, tree=tree)
-    # the pipeline's own evidence check: weak joints are refused (WeakEvidenceError)
-    confidence = assess_joints(pa, pb, seg, joints, config.joints, config.confidence, seed,
-                               anchors)
     dense = {}
     for c in ("a", "b"):
         pts, nrm, col = read_ply(model_dir / c / "dense.ply")
         dense[c] = DensePoints(pts, nrm, col, np.zeros((len(pts), 0), bool), [])
-    lab_a, lab_b = assign_dense_to_links(dense["a"], dense["b"], pa, pb, seg)
-    links = links_from_labels(dense["a"], dense["b"], lab_a, lab_b, seg.transforms)
+    art = articulate(pa, pb, m["background_a"], m["background_b"], dense["a"], dense["b"],
+                     ReconstructConfig(), seed)
+    seg, links, joints, root = art.segmentation, art.links, art.joints, art.root
     old = ArticulatedModel.load(model_dir / "model.json")
     correct = ~wrong
     summary = {"match_outliers": fraction, "matches": int(len(pa)), "made_wrong": int(wrong.sum()),
@@ -454,12 +434,12 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0) ->
                "right_rejected": int(((seg.labels < 0) & correct).sum()), "links": len(links),
                "joints": len(joints)}
     model = ArticulatedModel(
-        links=links, joints=joints, scale=old.scale, frames=old.frames, root=tree.root,
+        links=links, joints=joints, scale=old.scale, frames=old.frames, root=art.tree.root,
         scale_a_to_b=float(seg.scale), scale_known=old.scale_known,
         metadata={**old.metadata, "match_outliers": int((seg.labels < 0).sum()),
                   "link_matches": seg.sizes.tolist(),
                   "root_from": "background" if root is not None else "largest link",
-                  "confidence": confidence, "perturbation": summary})
+                  "confidence": art.confidence, "perturbation": summary})
     out_dir.mkdir(parents=True, exist_ok=True)
     model.save(out_dir / "model.json")
     np.savez(out_dir / "matches.npz", points_a=pa, points_b=pb, wrong=wrong, labels=seg.labels,
