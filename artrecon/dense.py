@@ -40,7 +40,10 @@ class DenseConfig:
     """Settings of the dense stage."""
 
     downsample: int = 2
-    """Stereo runs on images shrunk by this factor (2: 640x480 -> 320x240; 4x fewer pixels)."""
+    """Stereo runs on images shrunk by this factor (2: 640x480 -> 320x240; 4x fewer pixels).
+    1 (full resolution) halves the point spacing, for objects whose parts are only a few
+    millimetres thick (scissors: 0.966 of the points on the right link against 0.947 at 2), at
+    about 5x the dense stage's time."""
     min_pair_angle_deg: float = 4.0
     """Smallest triangulation angle of a stereo pair (smaller: depth too noisy)."""
     max_pair_angle_deg: float = 25.0
@@ -62,6 +65,11 @@ class DenseConfig:
     """Merge voxel edge, in downsampled pixels at the median camera distance to the focus."""
     normal_neighbours: int = 16
     """Neighbours for the PCA normal."""
+
+    def __post_init__(self) -> None:
+        if self.downsample < 1:
+            raise ValueError(f"DenseConfig.downsample must be 1 (full resolution) or more, got "
+                             f"{self.downsample}")
 
 
 @dataclass

@@ -36,7 +36,7 @@ import shutil
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -110,6 +110,46 @@ class ReconstructConfig:
     joints: JointConfig = field(default_factory=JointConfig)
     assign: AssignConfig = field(default_factory=AssignConfig)
     confidence: ConfidenceConfig = field(default_factory=ConfidenceConfig)
+
+
+def with_settings(config: ReconstructConfig, settings: dict[str, float | int | bool]
+                  ) -> ReconstructConfig:
+    """``config`` with some settings changed, each named ``"stage.field"`` as in
+    :class:`ReconstructConfig` (e.g. ``{"dense.downsample": 1}``: full-resolution stereo for
+    thin objects). A value is converted to the field's type (an int field takes only whole
+    numbers); an unknown stage or field, or a value of the wrong kind, raises InputError."""
+    stages = {f.name: getattr(config, f.name) for f in fields(config)}
+    changed: dict[str, dict] = {}
+    for key, value in settings.items():
+        stage, _, name = key.partition(".")
+        if stage not in stages or not name:
+            raise InputError(f"setting {key!r}: name it stage.field with a stage of "
+                             f"{sorted(stages)} (e.g. dense.downsample)")
+        sub = stages[stage]
+        known = {f.name for f in fields(sub)}
+        if name not in known:
+            raise InputError(f"setting {key!r}: {type(sub).__name__} has no field {name!r}; its "
+                             f"fields are {sorted(known)}")
+        default = getattr(sub, name)
+        kind = type(default)
+        if kind is bool:
+            if value not in (0, 1):
+                raise InputError(f"setting {key!r}: {value!r} is not a boolean (0 or 1)")
+            value = bool(value)
+        elif kind is int:
+            if float(value) != int(value):
+                raise InputError(f"setting {key!r}: {value!r} is not a whole number")
+            value = int(value)
+        elif kind is float:
+            value = float(value)
+        else:
+            raise InputError(f"setting {key!r}: a {kind.__name__} field cannot be set here")
+        changed.setdefault(stage, {})[name] = value
+    try:
+        return replace(config, **{stage: replace(stages[stage], **kw)
+                                  for stage, kw in changed.items()})
+    except ValueError as exc:  # a stage's own check (e.g. DenseConfig.downsample >= 1)
+        raise InputError(f"settings {settings}: {exc}") from exc
 
 
 def _cameras(sfm: SfMResult) -> tuple[np.ndarray, np.ndarray]:

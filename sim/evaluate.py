@@ -297,13 +297,15 @@ def capture_stages(scene: Scene, ev: EvalConfig, cache_root: Path,
 
 
 def reconstruct_stage(set_a: Path, set_b: Path, keys: tuple[str, str], ev: EvalConfig,
-                      cache_root: Path) -> tuple[Path, dict, bool]:
-    """Reconstruct the model from the two image sets (cached). Returns the model folder
-    (``model.json``, ``a/sparse/0`` ...), stage metadata, hit."""
+                      cache_root: Path, settings: dict | None = None
+                      ) -> tuple[Path, dict, bool]:
+    """Reconstruct the model from the two image sets (cached), with the default settings
+    changed by ``settings`` (the scene's, :attr:`sim.scene.Scene.reconstruct_settings`).
+    Returns the model folder (``model.json``, ``a/sparse/0`` ...), stage metadata, hit."""
     import artrecon
-    from artrecon.reconstruct import ReconstructConfig, _jsonable, reconstruct
+    from artrecon.reconstruct import ReconstructConfig, _jsonable, reconstruct, with_settings
 
-    config = ReconstructConfig()
+    config = with_settings(ReconstructConfig(), settings or {})
     inputs = {"captures": list(keys), "use_poses": ev.use_poses, "seed": ev.seed,
               "config": _jsonable(asdict(config)), "version": artrecon.__version__,
               "code": _reconstruct_sources()}
@@ -827,7 +829,7 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
         result["_sets"] = {c: str(p) for c, p in sets.items()}
         stage = "reconstruct"
         model_dir, meta, hit = reconstruct_stage(sets["a"], sets["b"], tuple(keys), ev,
-                                                 cache_root)
+                                                 cache_root, dict(scene.reconstruct_settings))
         rt = meta.get("timings", {})
         timings["sfm"] = rt.get("sfm_a", 0.0) + rt.get("sfm_b", 0.0)
         timings["dense"] = rt.get("dense_a", 0.0) + rt.get("dense_b", 0.0)
@@ -839,7 +841,7 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
                                     "assign_points"] if hit else []
         stage = "match_outliers"
         model_dir, pmeta = perturb.outlier_stage(model_dir, meta["key"], ev.perturb, ev.seed,
-                                                 cache_root)
+                                                 cache_root, dict(scene.reconstruct_settings))
         if pmeta:
             result["perturb_matches"] = pmeta
         model = ArticulatedModel.load(model_dir / "model.json")

@@ -400,7 +400,8 @@ def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | No
             cols(("red", "green", "blue"), np.uint8))
 
 
-def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0) -> dict:
+def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0,
+              settings: dict | None = None) -> dict:
     """Redo segmentation, joints and link points of a reconstruction with wrong matches.
 
     Reads ``model_dir``'s ``matches.npz`` and dense points, corrupts the object matches
@@ -409,11 +410,12 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0) ->
     dense labelling -- geometric only: the image cues need the SfM images --, tree, joints and
     the confidence check that refuses weak joints) and writes ``out_dir/model.json`` and
     ``out_dir/matches.npz``; ``out_dir/a`` and ``out_dir/b`` link to the SfM models. Raises what
-    those steps raise (a refusal included).
+    those steps raise (a refusal included). ``settings``: the reconstruction's settings that
+    differ from the defaults, as for artrecon.reconstruct.with_settings (the scene's).
     """
     from artrecon.dense import DensePoints
     from artrecon.model import ArticulatedModel
-    from artrecon.reconstruct import ReconstructConfig, articulate
+    from artrecon.reconstruct import ReconstructConfig, articulate, with_settings
 
     model_dir, out_dir = Path(model_dir), Path(out_dir)
     m = dict(np.load(model_dir / "matches.npz"))
@@ -423,10 +425,11 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0) ->
     for c in ("a", "b"):
         pts, nrm, col = read_ply(model_dir / c / "dense.ply")
         dense[c] = DensePoints(pts, nrm, col, np.zeros((len(pts), 0), bool), [])
-    art = articulate(pa, pb, m["background_a"], m["background_b"], dense["a"], dense["b"],
-                     ReconstructConfig(), seed)
-    seg, links, joints, root = art.segmentation, art.links, art.joints, art.root
     old = ArticulatedModel.load(model_dir / "model.json")
+    config = with_settings(ReconstructConfig(), settings or {})
+    art = articulate(pa, pb, m["background_a"], m["background_b"], dense["a"], dense["b"],
+                     config, seed)
+    seg, links, joints, root = art.segmentation, art.links, art.joints, art.root
     correct = ~wrong
     summary = {"match_outliers": fraction, "matches": int(len(pa)), "made_wrong": int(wrong.sum()),
                "outliers_found": int((seg.labels < 0).sum()),
@@ -450,9 +453,10 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0) ->
 
 
 def outlier_stage(model_dir: Path, reconstruct_key: str, p: Perturbation, seed: int,
-                  cache_root: Path) -> tuple[Path, dict]:
-    """The reconstruction with :attr:`Perturbation.match_outliers` wrong matches (cached).
-    Returns (model folder, summary); ``model_dir`` itself when there are none."""
+                  cache_root: Path, settings: dict | None = None) -> tuple[Path, dict]:
+    """The reconstruction with :attr:`Perturbation.match_outliers` wrong matches (cached), its
+    steps run with the reconstruction's ``settings`` (see :func:`resegment`). Returns (model
+    folder, summary); ``model_dir`` itself when there are none."""
     from sim import cache
 
     if not p.match_outliers:
@@ -461,7 +465,7 @@ def outlier_stage(model_dir: Path, reconstruct_key: str, p: Perturbation, seed: 
               "code": _source()}
     folder, meta, _ = cache.cached_stage(
         cache_root, "outliers", inputs,
-        lambda f: resegment(model_dir, f / "model", p.match_outliers, seed))
+        lambda f: resegment(model_dir, f / "model", p.match_outliers, seed, settings))
     return folder / "model", {k: v for k, v in meta.items() if k != "inputs"}
 
 

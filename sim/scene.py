@@ -9,7 +9,12 @@ A scene file (see ``scenes/README.md``) includes the shared stage and adds one o
   one per body, with a range;
 - the two configurations of the object (before and after the interaction) are declared per joint
   by name as ``<custom><numeric name="config_a:JOINT" data="VALUE"/>`` (and ``config_b:JOINT``),
-  in the joint's units (radians for hinges, metres for slides).
+  in the joint's units (radians for hinges, metres for slides);
+- optionally, reconstruction settings the scenario needs, as
+  ``<numeric name="reconstruct:STAGE.FIELD" data="VALUE"/>`` naming a field of
+  :class:`artrecon.reconstruct.ReconstructConfig` (e.g. ``reconstruct:dense.downsample`` 1 for
+  full-resolution stereo of a thin object). They are what a user would choose for such an object,
+  never ground truth; ``sim.evaluate`` reconstructs with them.
 
 ``load_scene`` compiles the file, checks all of the above and returns a :class:`Scene` with the
 compiled model and the ground truth: links, and for each joint its type, axis direction and a
@@ -25,7 +30,7 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import mujoco
@@ -48,6 +53,8 @@ OBJECT_BODY = "object"
 #: Names of the two configurations and the prefix of their ``<numeric>`` elements.
 CONFIGURATIONS = ("a", "b")
 CONFIG_PREFIX = "config_"
+#: Prefix of the ``<numeric>`` elements that set reconstruction settings.
+SETTINGS_PREFIX = "reconstruct:"
 
 #: Slack when checking that a configuration value lies in its joint's range: the values are
 #: written in decimal in the XML (e.g. 0.5236 for 30 deg) and MuJoCo stores ranges as float64,
@@ -206,6 +213,9 @@ class Scene:
         The object's joints in model order.
     couplings : tuple of Coupling
         Pairs of object joints constrained to move together (empty for independent joints).
+    reconstruct_settings : dict
+        ``{"stage.field": value}``: the reconstruction settings the scene asks for (see the
+        module docstring; artrecon.reconstruct.with_settings), empty for the defaults.
     """
 
     name: str
@@ -214,6 +224,7 @@ class Scene:
     links: tuple[Link, ...]
     joints: tuple[Joint, ...]
     couplings: tuple[Coupling, ...] = ()
+    reconstruct_settings: Mapping[str, float] = field(default_factory=dict)
 
     @property
     def moving_joints(self) -> tuple[Joint, ...]:
@@ -424,6 +435,31 @@ def _parse_configurations(model: mujoco.MjModel, path: Path,
     return values
 
 
+def _parse_settings(model: mujoco.MjModel, path: Path) -> dict[str, float]:
+    """``{"stage.field": value}`` from the ``reconstruct:`` numerics, checked against
+    artrecon's ReconstructConfig."""
+    from artrecon.errors import InputError
+    from artrecon.reconstruct import ReconstructConfig, with_settings
+
+    settings = {}
+    for i in range(model.nnumeric):
+        name = _name(model, mujoco.mjtObj.mjOBJ_NUMERIC, i)
+        if not name.startswith(SETTINGS_PREFIX):
+            continue
+        if int(model.numeric_size[i]) != 1:
+            raise SceneError(f'{path}: <numeric name="{name}"> has {int(model.numeric_size[i])} '
+                             f'values; fix: give exactly one, data="VALUE"')
+        settings[name[len(SETTINGS_PREFIX):]] = float(model.numeric_data[model.numeric_adr[i]])
+    try:
+        with_settings(ReconstructConfig(), settings)
+    except InputError as exc:
+        raise SceneError(f"{path}: reconstruction {exc}; fix: name a field of "
+                         f"artrecon.reconstruct.ReconstructConfig, as <numeric name=\""
+                         f"{SETTINGS_PREFIX}STAGE.FIELD\" data=\"VALUE\"/> with a value of its "
+                         f"kind, or remove the element") from exc
+    return settings
+
+
 def _parse_couplings(model: mujoco.MjModel, path: Path, joint_ids: dict[str, int],
                      configs: dict[str, dict[str, float]]) -> tuple[Coupling, ...]:
     """Joint equality constraints between object joints, checked against both configurations
@@ -555,7 +591,8 @@ def load_scene(name_or_path: str | os.PathLike) -> Scene:
     if not joints:
         log.warning("%s: the object has no joints (one rigid link)", path)
     couplings = _parse_couplings(model, path, joint_ids, configs)
-    scene = Scene(path.stem, path, model, tuple(links), tuple(joints), couplings)
+    scene = Scene(path.stem, path, model, tuple(links), tuple(joints), couplings,
+                  _parse_settings(model, path))
     log.debug("loaded scene %s: %d links, %d joints", path, len(links), len(joints))
     return scene
 

@@ -81,6 +81,21 @@ def test_cli_bad_intrinsics_is_input_error(tmp_path, capsys):
     assert code == 2 and "fx,fy,cx,cy" in err
 
 
+@pytest.mark.parametrize("setting, needle", [
+    ("dense.downsample", "expected STAGE.FIELD=NUMBER"),
+    ("dense.downsample=full", "expected STAGE.FIELD=NUMBER"),
+    ("dense.nope=1", "DenseConfig has no field 'nope'"),
+    ("dense.downsample=0", "downsample must be 1"),
+    ("nope.x=1", "name it stage.field"),
+])
+def test_cli_bad_setting_is_input_error(tmp_path, capsys, setting, needle):
+    a, b = _write_images(tmp_path / "a"), _write_images(tmp_path / "b", seed=1)
+    code, err = _cli(["reconstruct", str(a), str(b), "--out", str(tmp_path / "o"),
+                      "--set", setting], capsys)
+    assert code == 2 and needle in err, err
+    assert not (tmp_path / "o").exists()
+
+
 def test_cli_runs_as_a_program_without_traceback(tmp_path):
     """The console entry point itself (a subprocess): message on stderr, exit 2, no traceback."""
     a = _write_images(tmp_path / "a")

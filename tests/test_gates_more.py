@@ -306,8 +306,10 @@ GATE_VIEWS = int(os.environ.get("ARTRECON_GATE_VIEWS", "18"))
 #:   captures at 12767e5 (the triangulation is not bit-reproducible), 1.54 deg at fbfd8de; under
 #:   the 2 deg gate but near it (segment_links' restarts measured 0.75-2.9 deg over seeds, 38-44
 #:   matches on the moving blade); 0.14 deg at 9b58f88, the fixed blade's motion fitted with the
-#:   table it lies on (reconstruct.anchor_to_background). Its segmentation 0.947: a known miss
-#:   (KNOWN_MISSES).
+#:   table it lies on (reconstruct.anchor_to_background). Its segmentation was 0.947 with the
+#:   default half-resolution stereo (the lower blade's side faces under the upper blade's edge,
+#:   2.5-4 mm thick against 1.6 mm point spacing); the scene asks for full resolution
+#:   (reconstruct:dense.downsample 1 in scissors.xml): 0.966, the dense stage about 5x longer.
 GATE_SCENES_MORE = {
     "scraper_truck": ({}, "chain of two hinges"),
     "cabinet": ({"use_poses": True}, "hinge and slide in one object"),
@@ -331,15 +333,7 @@ GATE_JOINTS = {
 #: day a scene passes, the entry must go. Gates are never loosened here. cabinet (0.976) and
 #: pliers_panda (0.965) left it at c571d97 (segmentation against the rendered labels, graph-cut
 #: labelling in two passes; they measured 0.913 and 0.922 by the nearest-surface figure before).
-KNOWN_MISSES: dict[tuple[str, str], str] = {
-    ("scissors", "segmentation"): "measured 0.947 < 0.95 with known poses at c571d97 (rendered "
-                                  "link labels; 0.924-0.927 with the nearest-surface figure "
-                                  "and ICM): 0.928 of the points seen in A right, 0.968 of "
-                                  "those seen in B; the errors lie where the two thin halves "
-                                  "overlap near the pivot (the lower blade, hidden under the "
-                                  "upper in A); the joint passes (axis 0.67 deg, position "
-                                  "0.04 mm, state 0.05 deg), manipulation 29.4/30.1 deg",
-}
+KNOWN_MISSES: dict[tuple[str, str], str] = {}
 
 _RESULTS: dict[str, dict] = {}
 

@@ -317,12 +317,15 @@ _GOOD_OBJECT = """
     </body>"""
 
 
+_CONFIGS = ('<numeric name="config_a:lid_hinge" data="0"/>'
+            '<numeric name="config_b:lid_hinge" data="0.5"/>')
+
+
 def _write(tmp_path: Path, *, obj: str | None = None, jtype: str = "hinge",
            range_: str = 'range="0 1"', configs: str | None = None, asset: str = "") -> Path:
     obj = _GOOD_OBJECT.format(jtype=jtype, range=range_) if obj is None else obj
     if configs is None:
-        configs = ('<numeric name="config_a:lid_hinge" data="0"/>'
-                   '<numeric name="config_b:lid_hinge" data="0.5"/>')
+        configs = _CONFIGS
     path = tmp_path / "broken.xml"
     path.write_text(f"""<mujoco>
   <compiler angle="radian" autolimits="true"/>
@@ -337,6 +340,7 @@ def _write(tmp_path: Path, *, obj: str | None = None, jtype: str = "hinge",
 
 def test_minimal_standalone_scene_loads(tmp_path):
     scene = load_scene(_write(tmp_path))
+    assert scene.reconstruct_settings == {}
     (j,) = scene.joints
     assert (j.type, j.parent, j.child, j.value_a, j.value_b) == ("revolute", "object", "lid",
                                                                   0.0, 0.5)
@@ -363,6 +367,16 @@ def test_minimal_standalone_scene_loads(tmp_path):
      ["'lid_hinge' has no value in configuration 'b'", 'name="config_b:lid_hinge"']),
     ("bad config name", dict(configs='<numeric name="config_c:lid_hinge" data="0"/>'),
      ['<numeric name="config_c:lid_hinge">', "config_a:<joint name>"]),
+    ("unknown setting", dict(configs=_CONFIGS + '<numeric name="reconstruct:dense.nope" '
+                                                'data="1"/>'),
+     ["reconstruction setting 'dense.nope'", "no field 'nope'", "downsample",
+      "reconstruct:STAGE.FIELD"]),
+    ("bad setting value", dict(configs=_CONFIGS + '<numeric name="reconstruct:dense.downsample" '
+                                                  'data="0.5"/>'),
+     ["'dense.downsample'", "not a whole number"]),
+    ("setting out of range", dict(configs=_CONFIGS + '<numeric '
+                                  'name="reconstruct:dense.downsample" data="0"/>'),
+     ["downsample must be 1", "(full resolution) or more"]),
     ("no range", dict(range_=""), ['<joint name="lid_hinge">', "no range", 'range="LO HI"']),
     ("missing texture", dict(asset='<texture name="t" type="2d" file="no_such_texture.png"/>'),
      ["no_such_texture.png", "could not compile", "relative to the scene file's folder"]),
@@ -378,6 +392,26 @@ def test_malformed_scene_raises_useful_error(tmp_path, case, kwargs, needles):
     assert "fix" in message.lower(), f"{case}: message gives no fix: {message}"
     for needle in needles:
         assert needle in message, f"{case}: {needle!r} not in {message!r}"
+
+
+def test_scene_reconstruction_settings_are_read_and_applied(tmp_path):
+    """A scene's reconstruct:STAGE.FIELD numerics reach ReconstructConfig (sim.evaluate builds its
+    config from them); scissors asks for full-resolution stereo (its halves are millimetres
+    thick)."""
+    from artrecon.reconstruct import ReconstructConfig, with_settings
+
+    path = _write(tmp_path, configs=_CONFIGS + '<numeric name="reconstruct:dense.downsample" '
+                                               'data="1"/><numeric name="reconstruct:'
+                                               'segmentation.min_link_fraction" data="0.05"/>')
+    scene = load_scene(path)
+    assert scene.reconstruct_settings == {"dense.downsample": 1.0,
+                                          "segmentation.min_link_fraction": 0.05}
+    config = with_settings(ReconstructConfig(), scene.reconstruct_settings)
+    assert config.dense.downsample == 1 and isinstance(config.dense.downsample, int)
+    assert config.segmentation.min_link_fraction == 0.05
+    assert config.dense.voxel_pixels == ReconstructConfig().dense.voxel_pixels  # others kept
+    assert load_scene("scissors").reconstruct_settings == {"dense.downsample": 1.0}
+    assert load_scene("pliers").reconstruct_settings == {}
 
 
 def test_unknown_scene_name_lists_the_scenes():
