@@ -32,6 +32,7 @@ Output folder (written whole or not at all: built in a temporary sibling folder,
 from __future__ import annotations
 
 import logging
+import math
 import shutil
 import sys
 import tempfile
@@ -483,10 +484,16 @@ def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndar
         seg = segment_links(points_a, points_b, config.segmentation, seed=seed)
         seg = merge_equivalent_links(points_a, points_b, seg)
         if seg.n_links < 2:
+            n = len(points_a)
+            left = int((seg.labels < 0).sum())
+            least = max(config.segmentation.min_link_points,
+                        math.ceil(config.segmentation.min_link_fraction * n), 3)
             raise DegenerateError(
                 f"the matches form {seg.n_links} rigid link(s), an articulated object needs at "
-                "least 2: the object moved as one rigid body. Move a joint between the two "
-                "captures.")
+                f"least 2: either the object moved as one rigid body (move a joint between the "
+                f"two captures), or its moving part has too few matches to be found ({left} of "
+                f"the {n} matches fit no link, a link needs at least {least}): photograph it "
+                "with more views, in sharper images or with more texture on it.")
     except DegenerateError as exc:  # fewer than two links: one moving body, or other objects?
         raise explain_segmentation_failure(exc, points_a, points_b, config.segmentation,
                                            seed) from exc
