@@ -439,7 +439,9 @@ def explain_segmentation_failure(exc: Exception, points_a, points_b, seg_config,
         f"no consistent link between the two image sets: at most {100 * share:.0f}% of the {n} "
         f"matches on the object move together under one rigid motion (a real object: most of "
         f"them; need {100 * MIN_CONSISTENT_SHARE:.0f}%), so the matches are chance pairings. Are "
-        "both image sets of the same object, photographed from similar directions? "
+        "both image sets of the same object, photographed from similar directions? If they "
+        "are, the two sets' models disagree beyond the matches' noise: take more views per ring "
+        "(the drawer failed so at 12 per ring, and with 2.5 px of blur) or sharper images "
         f"(segmentation: {exc})")
 
 
