@@ -54,3 +54,20 @@ class PoseMismatchError(ReconstructionError):
     def __init__(self, message: str, agreement: dict | None = None):
         super().__init__(message)
         self.agreement = dict(agreement or {})
+
+
+class RegistrationMismatchError(ReconstructionError):
+    """Two registrations of the model into the robot's frame (camera centres against the arm's
+    camera positions; PnP of a fresh image with the hand-eye calibration) disagree by more than a
+    grasp tolerates: the arm's camera positions are off (a camera mount error on the wrist, arm
+    encoder errors). Refused rather than handing the arm axes in a wrong place.
+
+    Attributes
+    ----------
+    agreement : dict
+        The measured figures (:func:`artrecon.confidence.registration_agreement`).
+    """
+
+    def __init__(self, message: str, agreement: dict | None = None):
+        super().__init__(message)
+        self.agreement = dict(agreement or {})

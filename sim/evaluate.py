@@ -374,15 +374,17 @@ def register_stage(model, model_dir: Path, set_a: Path, scene: Scene, seed: int)
     summary["pnp"], summary["pnp_reason"] = None, None
     try:
         summary["pnp"] = _pnp_route(model, model_dir, set_a, scene, cams, sfm, reg, seed)
-        # issue 9: the two routes' agreement, overall and at each joint's axis, joins the
-        # joints' confidence records of the registered model
-        from artrecon.confidence import registration_agreement
-
-        summary["pnp"]["agreement"] = registration_agreement(
-            model, reg.T_robot_model, summary["pnp"].pop("_T"), registered=registered)
     except Exception as err:  # a route that does not work is reported, not hidden
         summary["pnp_reason"] = f"{type(err).__name__}: {err}"
         log.warning("%s: PnP registration route failed: %s", scene.name, err)
+    else:
+        # issue 9: the two routes' agreement, overall and at each joint's axis, joins the
+        # joints' confidence records of the registered model; routes that disagree refuse
+        from artrecon.confidence import check_registration_agreement, registration_agreement
+
+        summary["pnp"]["agreement"] = registration_agreement(
+            model, reg.T_robot_model, summary["pnp"].pop("_T"), registered=registered)
+        check_registration_agreement(summary["pnp"]["agreement"])
     return {"registered": registered, "T": reg.T_robot_model, "sfm_poses": sfm,
             "summary": summary}
 

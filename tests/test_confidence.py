@@ -206,6 +206,26 @@ def test_registration_agreement_is_measured_at_each_axis():
     assert reg.joints[0].confidence["registration"]["agree"] is False
 
 
+def test_registrations_that_disagree_are_refused():
+    """A camera mount error on the wrist moves the camera-centre registration and not the PnP +
+    hand-eye one (issue 9's sweep: 20 mm gave a truck axis 21 mm off, unrefused): the two
+    disagreeing is a refusal that names the figures and the fix; 5 mm apart passes."""
+    from artrecon.errors import RegistrationMismatchError
+
+    model = _model_with_confidence()
+    T1 = Similarity(np.eye(3), np.zeros(3), 2.0)
+    near = Similarity(np.eye(3), np.array([0.004, 0.0, 0.003]), 1.0)  # 5 mm
+    conf.check_registration_agreement(conf.registration_agreement(model, T1, near @ T1))
+    far = Similarity(np.eye(3), np.array([0.0, 0.02, 0.01]), 1.0)  # 22 mm
+    out = conf.registration_agreement(model, T1, far @ T1)
+    with pytest.raises(RegistrationMismatchError) as info:
+        conf.check_registration_agreement(out)
+    msg = str(info.value)
+    assert "22.4 mm (RMS)" in msg and "joint joint_0_1's axis 22.4 mm" in msg
+    assert "limits 10 mm, 2 deg" in msg and "recalibrate the camera's mount" in msg
+    assert info.value.agreement["translation_mm"] == pytest.approx(22.36, abs=0.01)
+
+
 def test_joint_without_confidence_is_a_valid_joint():
     j = Joint("revolute", [0, 0, 1], [0, 0, 0], 0, 1)
     assert j.confidence == {}
