@@ -60,14 +60,15 @@ def parse_settings(items: list[str]) -> dict[str, float]:
     the names and values are checked by artrecon.reconstruct.with_settings)."""
     out = {}
     for item in items:
-        key, sep, value = item.partition("=")
+        key, _, value = item.partition("=")
         try:
-            out[key.strip()] = float(value)
+            number = float(value)
         except ValueError:
-            sep = ""
-        if not sep or not key.strip():
+            number = None
+        if number is None or not key.strip():
             raise InputError(f"--set {item!r}: expected STAGE.FIELD=NUMBER, e.g. "
                              "dense.downsample=1")
+        out[key.strip()] = number
     return out
 
 

@@ -40,7 +40,15 @@ class WeakEvidenceError(ReconstructionError):
         self.records = list(records or [])
 
 
-class PoseMismatchError(ReconstructionError):
+class MismatchError(ReconstructionError):
+    """Two measurements that must agree do not; ``agreement`` holds the figures."""
+
+    def __init__(self, message: str, agreement: dict | None = None):
+        super().__init__(message)
+        self.agreement = dict(agreement or {})
+
+
+class PoseMismatchError(MismatchError):
     """The given camera poses (e.g. the arm's forward kinematics) do not agree with the images:
     the images' verified feature matches contradict the epipolar geometry the poses predict, and
     few of them triangulate. Refused rather than reconstructed from wrong cameras (a wrong model).
@@ -51,12 +59,8 @@ class PoseMismatchError(ReconstructionError):
         The measured figures (:func:`artrecon.sfm.pose_agreement`).
     """
 
-    def __init__(self, message: str, agreement: dict | None = None):
-        super().__init__(message)
-        self.agreement = dict(agreement or {})
 
-
-class RegistrationMismatchError(ReconstructionError):
+class RegistrationMismatchError(MismatchError):
     """Two registrations of the model into the robot's frame (camera centres against the arm's
     camera positions; PnP of a fresh image with the hand-eye calibration) disagree by more than a
     grasp tolerates: the arm's camera positions are off (a camera mount error on the wrist, arm
@@ -67,7 +71,3 @@ class RegistrationMismatchError(ReconstructionError):
     agreement : dict
         The measured figures (:func:`artrecon.confidence.registration_agreement`).
     """
-
-    def __init__(self, message: str, agreement: dict | None = None):
-        super().__init__(message)
-        self.agreement = dict(agreement or {})

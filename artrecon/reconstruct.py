@@ -32,7 +32,6 @@ Output folder (written whole or not at all: built in a temporary sibling folder,
 from __future__ import annotations
 
 import logging
-import math
 import shutil
 import sys
 import tempfile
@@ -65,7 +64,12 @@ from artrecon.io import (
 from artrecon.joints import JointConfig, KinematicTree, build_kinematic_tree, estimate_joints
 from artrecon.model import ArticulatedModel, Link
 from artrecon.procrustes import rigid_transform
-from artrecon.segment import Segmentation, SegmentationConfig, segment_links
+from artrecon.segment import (
+    Segmentation,
+    SegmentationConfig,
+    min_link_size,
+    segment_links,
+)
 from artrecon.sfm import SfMConfig, SfMResult, layout_error, run_sfm
 
 log = logging.getLogger(__name__)
@@ -444,8 +448,9 @@ class Articulation:
     links: list[Link]
     tree: KinematicTree
     joints: list
-    confidence: list
-    """Per joint, :func:`artrecon.confidence.assess_joints`' record."""
+    confidence: dict
+    """:func:`artrecon.confidence.assess_joints`' summary (each joint's record is also in
+    ``Joint.confidence``)."""
     timings: dict[str, float]
 
 
@@ -486,8 +491,7 @@ def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndar
         if seg.n_links < 2:
             n = len(points_a)
             left = int((seg.labels < 0).sum())
-            least = max(config.segmentation.min_link_points,
-                        math.ceil(config.segmentation.min_link_fraction * n), 3)
+            least = min_link_size(config.segmentation, n)
             raise DegenerateError(
                 f"the matches form {seg.n_links} rigid link(s), an articulated object needs at "
                 f"least 2: either the object moved as one rigid body (move a joint between the "

@@ -173,6 +173,12 @@ def _score(rot, trans, scales, pa, pb, thr2) -> tuple[np.ndarray, np.ndarray]:
     return scores, counts
 
 
+def min_link_size(config: SegmentationConfig, n: int) -> int:
+    """Fewest matches a link may have among ``n``: SegmentationConfig.min_link_points, or
+    min_link_fraction of them, and at least the 3 a transform needs."""
+    return max(config.min_link_points, math.ceil(config.min_link_fraction * n), 3)
+
+
 def _ransac_round(pa, pb, thr, size_a, scale, min_size, rng, cfg):
     """Best hypothesis on the remaining matches; returns (Similarity | None, hypotheses drawn)."""
     m = len(pa)
@@ -335,7 +341,7 @@ def segment_links(
         )
     thr = config.inlier_threshold * size_b
     floor = tol.ADAPTIVE_THRESHOLD_FLOOR * size_b
-    min_size = max(config.min_link_points, math.ceil(config.min_link_fraction * n), 3)
+    min_size = min_link_size(config, n)
 
     runs = [_sequential_ransac(pa, pb, thr, floor, size_a, min_size,
                                np.random.default_rng(seed if r == 0 else [seed, r]), config)
