@@ -70,6 +70,7 @@ from scipy.spatial import ConvexHull, cKDTree
 from scipy.spatial.transform import Rotation
 
 from artrecon.errors import ArtreconError, InputError
+from artrecon.io import umask
 from artrecon.model import ArticulatedModel
 
 log = logging.getLogger(__name__)
@@ -739,7 +740,7 @@ class _Staged:
         try:
             with os.fdopen(fd, "wb") as f:
                 f.write(data)
-            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual mode
+            os.chmod(tmp, 0o666 & ~umask())  # mkstemp makes 0600; give the usual mode
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
@@ -757,12 +758,6 @@ class _Staged:
         for tmp, _ in self._pending:
             tmp.unlink(missing_ok=True)
         self._pending = []
-
-
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
 
 
 def _with_staging(fn):

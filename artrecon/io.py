@@ -315,3 +315,112 @@ def load_cameras_json(path: str | Path) -> tuple[Intrinsics, dict[str, np.ndarra
                              f"'T_world_camera' (got shape {T.shape})")
         poses[Path(name).name] = T
     return intr, poses
+
+
+# ---------------------------------------------------------------------------- writing files
+# The one copy of the project's file writers: whole or not at all (a temporary file beside the
+# target, renamed over it when complete: a run killed while writing leaves the old file, or none,
+# never half of one), with the usual file mode (mkstemp makes 0600).
+
+
+def umask() -> int:
+    """The process's file-creation mask (read without changing it)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` to ``path`` whole or not at all; returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.chmod(tmp, 0o666 & ~umask())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` whole or not at all; returns the path."""
+    return write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def write_json_atomic(path: str | os.PathLike, obj, indent: int | None = 2) -> Path:
+    """Write ``obj`` as JSON (numpy values and paths converted; NaN refused) whole or not at
+    all; returns the path."""
+    text = json.dumps(obj, indent=indent, allow_nan=False, default=_json_default)
+    return write_text_atomic(path, text + "\n")
+
+
+_PLY_TYPES = {"<f4": "float", "u1": "uchar"}
+
+
+def write_ply(path: str | Path, points: np.ndarray, normals: np.ndarray | None = None,
+              colours: np.ndarray | None = None) -> Path:
+    """Binary little-endian PLY of points (n, 3) with optional normals (n, 3) and RGB (n, 3),
+    written whole or not at all."""
+    points = np.asarray(points, dtype=float)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points: expected shape (n, 3), got {points.shape}")
+    n = len(points)
+    columns = {"x": points[:, 0], "y": points[:, 1], "z": points[:, 2]}
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    for names, values, kind in ((("nx", "ny", "nz"), normals, "<f4"),
+                                (("red", "green", "blue"), colours, "u1")):
+        if values is None:
+            continue
+        values = np.asarray(values)
+        if values.shape != (n, 3):
+            raise ValueError(f"{names}: expected shape ({n}, 3), got {values.shape}")
+        fields += [(c, kind) for c in names]
+        columns.update({c: values[:, k] for k, c in enumerate(names)})
+    rec = np.zeros(n, dtype=fields)
+    for name, _ in fields:
+        rec[name] = columns[name]
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
+    header += [f"property {_PLY_TYPES[t]} {name}" for name, t in fields]
+    header.append("end_header")
+    return write_bytes_atomic(path, ("\n".join(header) + "\n").encode("ascii") + rec.tobytes())
+
+
+def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Points (n, 3), normals (n, 3) or None, colours (n, 3) uint8 or None of a PLY written by
+    :func:`write_ply` (binary little-endian vertex lists of float and uchar properties)."""
+    data = Path(path).read_bytes()
+    if b"end_header\n" not in data or not data.startswith(b"ply"):
+        raise InputError(f"{path} is not a PLY file written by artrecon (no PLY header)")
+    head, body = data.split(b"end_header\n", 1)
+    if b"binary_little_endian" not in head:
+        raise InputError(f"{path}: only binary little-endian PLY files are read")
+    props = [ln.split() for ln in head.splitlines() if ln.startswith(b"property")]
+    kinds = {b"float": "<f4", b"uchar": "u1", b"double": "<f8"}
+    if any(len(p) != 3 or p[1] not in kinds for p in props):
+        raise InputError(f"{path}: unsupported PLY properties (float, double and uchar only)")
+    dtype = [(p[2].decode(), kinds[p[1]]) for p in props]
+    rec = np.frombuffer(body, dtype=dtype)
+    names = [d[0] for d in dtype]
+
+    def cols(wanted, out_dtype):
+        return (np.column_stack([rec[c] for c in wanted]).astype(out_dtype)
+                if all(c in names for c in wanted) else None)
+
+    points = cols(("x", "y", "z"), float)
+    if points is None:
+        raise InputError(f"{path}: the PLY has no x, y, z properties")
+    return points, cols(("nx", "ny", "nz"), float), cols(("red", "green", "blue"), np.uint8)

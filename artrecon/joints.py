@@ -31,12 +31,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
 from artrecon import tolerances as tol
 from artrecon.errors import DegenerateError, ReconstructionError
+from artrecon.geometry import axis_angle, rotation_angle
 from artrecon.model import Joint
-from artrecon.procrustes import Similarity, rotation_angle
+from artrecon.procrustes import Similarity
 
 log = logging.getLogger(__name__)
 
@@ -97,14 +97,6 @@ def relative_motion(t_parent: Similarity, t_child: Similarity) -> Similarity:
     return t_parent.inverse() @ t_child
 
 
-def _axis_angle(rotation: np.ndarray) -> tuple[np.ndarray, float]:
-    rotvec = Rotation.from_matrix(rotation).as_rotvec()
-    theta = float(np.linalg.norm(rotvec))
-    if theta == 0.0:
-        return np.array([0.0, 0.0, 1.0]), 0.0
-    return rotvec / theta, theta
-
-
 def single_joint_misfit(
     motion: Similarity, child_points: np.ndarray, revolute_min_angle: float
 ) -> tuple[str, float]:
@@ -127,7 +119,7 @@ def single_joint_misfit(
         Model units. Revolute: |slide along the axis| (a screw motion is not one joint).
         Prismatic: RMS displacement of the child's points caused by the residual rotation.
     """
-    u, theta = _axis_angle(motion.rotation)
+    u, theta = axis_angle(motion.rotation)
     if theta >= revolute_min_angle:
         return "revolute", abs(float(motion.translation @ u))
     centred = child_points - child_points.mean(axis=0)
@@ -162,7 +154,7 @@ def joint_from_motion(
     kind, misfit = single_joint_misfit(motion, child_points, config.revolute_min_angle)
     c_child = child_points.mean(axis=0)
     if kind == "revolute":
-        u, theta = _axis_angle(motion.rotation)
+        u, theta = axis_angle(motion.rotation)
         t = motion.translation
         t_perp = t - (t @ u) * u
         # Rotation about the axis through p: t = (I - R) p. In the plane normal to u this inverts
@@ -299,7 +291,7 @@ def axis_gap(motion: Similarity, points_i: np.ndarray, points_j: np.ndarray,
     float
         Model units.
     """
-    u, theta = _axis_angle(motion.rotation)
+    u, theta = axis_angle(motion.rotation)
     if theta < revolute_min_angle:
         return 0.0
     t = motion.translation

@@ -12,14 +12,13 @@ from __future__ import annotations
 
 import json
 import logging
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from artrecon.errors import InputError
+from artrecon.io import write_text_atomic
 from artrecon.procrustes import Similarity
 
 log = logging.getLogger(__name__)
@@ -378,19 +377,8 @@ class ArticulatedModel:
     def save(self, path: str | Path) -> Path:
         """Write the model as JSON (lossless); returns the path."""
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        text = json.dumps(self.to_dict(), indent=1)
-        # Whole or not at all: a temporary file beside the target, renamed over it when complete
-        # (a run killed while writing leaves the old file, or none, never half a model).
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "w") as fh:
-                fh.write(text)
-            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give the usual mode
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        # whole or not at all: a run killed while writing leaves the old file, never half a model
+        write_text_atomic(path, json.dumps(self.to_dict(), indent=1))
         log.info("saved articulated model (%d links, %d joints) to %s",
                  len(self.links), len(self.joints), path)
         return path
@@ -421,9 +409,3 @@ def _decode(d) -> np.ndarray | None:
     if d is None:
         return None
     return np.array(d["data"], dtype=np.dtype(d["dtype"])).reshape(d["shape"])
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask

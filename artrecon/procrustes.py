@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from artrecon.errors import DegenerateError
+from artrecon.geometry import rotation_angle
 from artrecon.tolerances import COLLINEAR_RATIO
 
 log = logging.getLogger(__name__)
@@ -135,15 +136,6 @@ class Similarity:
     @classmethod
     def from_dict(cls, d: dict) -> Similarity:
         return cls(np.array(d["rotation"]), np.array(d["translation"]), float(d["scale"]))
-
-
-def rotation_angle(rotation: np.ndarray) -> float:
-    """Geodesic angle of a rotation matrix in [0, pi] (atan2 form: accurate near 0 and pi)."""
-    r = np.asarray(rotation, dtype=float)
-    if r.shape != (3, 3):
-        raise ValueError(f"rotation must have shape (3, 3), got {r.shape}")
-    skew = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
-    return float(np.arctan2(0.5 * np.linalg.norm(skew), 0.5 * (np.trace(r) - 1.0)))
 
 
 def _check_pairs(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None):

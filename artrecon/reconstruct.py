@@ -60,6 +60,7 @@ from artrecon.io import (
     make_work_dir,
     parse_intrinsics,
     publish_dir,
+    write_ply,
 )
 from artrecon.joints import JointConfig, KinematicTree, build_kinematic_tree, estimate_joints
 from artrecon.model import ArticulatedModel, Link
@@ -161,38 +162,6 @@ def _cameras(sfm: SfMResult) -> tuple[np.ndarray, np.ndarray]:
     T = sfm.T_world_camera()
     names = sorted(T)
     return np.array([T[n][:3, 3] for n in names]), np.array([T[n][:3, 2] for n in names])
-
-
-def write_ply(path: str | Path, points: np.ndarray, normals: np.ndarray | None = None,
-              colours: np.ndarray | None = None) -> Path:
-    """Binary little-endian PLY of points (n, 3) with optional normals (n, 3) and RGB (n, 3)."""
-    points = np.asarray(points, dtype=float)
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"points: expected shape (n, 3), got {points.shape}")
-    n = len(points)
-    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
-    if normals is not None:
-        fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
-    if colours is not None:
-        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
-    rec = np.zeros(n, dtype=fields)
-    for k, c in enumerate("xyz"):
-        rec[c] = points[:, k]
-    if normals is not None:
-        for k, c in enumerate(("nx", "ny", "nz")):
-            rec[c] = np.asarray(normals)[:, k]
-    if colours is not None:
-        for k, c in enumerate(("red", "green", "blue")):
-            rec[c] = np.asarray(colours)[:, k]
-    types = {"<f4": "float", "u1": "uchar"}
-    header = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
-    header += [f"property {types[t]} {name}" for name, t in fields]
-    header.append("end_header")
-    path = Path(path)
-    with open(path, "wb") as fh:
-        fh.write(("\n".join(header) + "\n").encode("ascii"))
-        fh.write(rec.tobytes())
-    return path
 
 
 def merge_equivalent_links(points_a: np.ndarray, points_b: np.ndarray,

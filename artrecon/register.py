@@ -46,8 +46,9 @@ import numpy as np
 
 from artrecon.confidence import rescale_confidence
 from artrecon.errors import DegenerateError, InputError, ReconstructionError
+from artrecon.geometry import invert_pose, log_so3, pose, rotation_angle
 from artrecon.model import ArticulatedModel
-from artrecon.procrustes import Similarity, rotation_angle, similarity_transform
+from artrecon.procrustes import Similarity, similarity_transform
 
 log = logging.getLogger(__name__)
 
@@ -115,30 +116,6 @@ def _points(name: str, p, cols: int = 3) -> np.ndarray:
     if p.ndim != 2 or p.shape[1] != cols:
         raise ValueError(f"{name} must have shape (n, {cols}), got {p.shape}")
     return p
-
-
-def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, t
-    return T
-
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    R, t = T[:3, :3], T[:3, 3]
-    return _pose(R.T, -R.T @ t)
-
-
-def _log_so3(R: np.ndarray) -> np.ndarray:
-    """Rotation vector of a rotation matrix (robust near 0; near pi via the eigenvector)."""
-    angle = rotation_angle(R)
-    if angle < 1e-12:
-        return np.zeros(3)
-    if np.pi - angle < 1e-6:
-        w, v = np.linalg.eigh(0.5 * (R + R.T))
-        axis = v[:, np.argmax(w)]
-        return angle * axis
-    skew = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    return angle * skew / np.linalg.norm(skew)
 
 
 # --- (a) camera centres -----------------------------------------------------------------------
@@ -414,7 +391,7 @@ def localize_image(keypoints, descriptors, landmarks, landmark_descriptors, K, *
     idx = inl.reshape(-1)
     rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], K, None, rvec, tvec)
     R, _ = cv2.Rodrigues(rvec)
-    T = _pose(R, tvec.reshape(3))
+    T = pose(R, tvec.reshape(3))
     proj = (obj @ R.T + tvec.reshape(3)) @ K.T
     proj = proj[:, :2] / proj[:, 2:3]
     err = np.linalg.norm(proj - img, axis=1)
@@ -487,7 +464,7 @@ def _park_martin(A: list[np.ndarray], B: list[np.ndarray]) -> np.ndarray:
     """AX = XB by Park & Martin (1994): closed-form rotation, least-squares translation."""
     M = np.zeros((3, 3))
     for a, b in zip(A, B, strict=True):
-        M += np.outer(_log_so3(b[:3, :3]), _log_so3(a[:3, :3]))
+        M += np.outer(log_so3(b[:3, :3]), log_so3(a[:3, :3]))
     w, V = np.linalg.eigh(M.T @ M)
     if w.min() <= 1e-12 * max(w.max(), 1e-300):
         raise DegenerateError("hand-eye: the gripper motions rotate about fewer than two distinct "
@@ -498,7 +475,7 @@ def _park_martin(A: list[np.ndarray], B: list[np.ndarray]) -> np.ndarray:
     C = np.vstack([a[:3, :3] - np.eye(3) for a in A])
     d = np.concatenate([Rx @ b[:3, 3] - a[:3, 3] for a, b in zip(A, B, strict=True)])
     tx = np.linalg.lstsq(C, d, rcond=None)[0]
-    return _pose(Rx, tx)
+    return pose(Rx, tx)
 
 
 def calibrate_hand_eye(T_robot_flange, T_model_camera, scale: float) -> HandEyeResult:
@@ -527,19 +504,19 @@ def calibrate_hand_eye(T_robot_flange, T_model_camera, scale: float) -> HandEyeR
         raise ValueError(f"scale must be > 0 (metres per model unit), got {scale}")
     Cm = C.copy()
     Cm[:, :3, 3] *= scale
-    T_ct = np.array([_inv(c) for c in Cm])  # target (scaled model) in camera
+    T_ct = np.array([invert_pose(c) for c in Cm])  # target (scaled model) in camera
     calib = getattr(cv2, "calibrateHandEye", None)
     if calib is not None:
         R, t = calib(G[:, :3, :3], G[:, :3, 3], T_ct[:, :3, :3], T_ct[:, :3, 3],
                      method=cv2.CALIB_HAND_EYE_PARK)
-        X = _pose(np.asarray(R), np.asarray(t).reshape(3))
+        X = pose(np.asarray(R), np.asarray(t).reshape(3))
     else:
         A, B = [], []
         n = len(G)
         for i in range(n):
             for j in range(i + 1, n):
-                a = _inv(G[j]) @ G[i]
-                b = T_ct[j] @ _inv(T_ct[i])
+                a = invert_pose(G[j]) @ G[i]
+                b = T_ct[j] @ invert_pose(T_ct[i])
                 if rotation_angle(a[:3, :3]) >= HAND_EYE_MIN_ROTATION:
                     A.append(a)
                     B.append(b)
@@ -553,7 +530,7 @@ def calibrate_hand_eye(T_robot_flange, T_model_camera, scale: float) -> HandEyeR
     mean_R = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
     rot = [np.rad2deg(rotation_angle(mean_R.T @ T[:3, :3])) for T in targets]
     tr = np.linalg.norm(targets[:, :3, 3] - mean_t, axis=1) * 1e3
-    out = HandEyeResult(X, _pose(mean_R, mean_t), float(np.sqrt(np.mean(np.square(rot)))),
+    out = HandEyeResult(X, pose(mean_R, mean_t), float(np.sqrt(np.mean(np.square(rot)))),
                         float(np.sqrt(np.mean(tr ** 2))), HAND_EYE_BACKEND)
     log.info("hand-eye (%s): camera %.1f mm from the flange, consistency %.2f mm / %.3f deg",
              out.backend, 1e3 * np.linalg.norm(X[:3, 3]), out.translation_residual_mm,

@@ -43,6 +43,7 @@ import numpy as np
 from PIL import Image
 from tqdm import tqdm
 
+from artrecon.geometry import rotation_angle
 from sim import render, robot, views
 from sim.camera import convert_camera_pose, mujoco_camera_intrinsics
 
@@ -178,10 +179,6 @@ def _write_pngs(items) -> None:
 def read_depth_png(path) -> np.ndarray:
     """Depth (m) : (h, w) float from a ground-truth depth PNG (0 where no surface)."""
     return np.asarray(Image.open(path), dtype=np.float64) * DEPTH_PNG_SCALE
-
-
-def _rot_angle(R: np.ndarray) -> float:
-    return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
 
 
 def _as_list(T) -> list:
@@ -461,7 +458,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
                 q = arm.measured_q()
                 T_fk = kin.camera_pose(q)
                 dp = float(np.linalg.norm(T_fk[:3, 3] - T_true[:3, 3]))
-                dr = _rot_angle(T_fk[:3, :3].T @ T_true[:3, :3])
+                dr = rotation_angle(T_fk[:3, :3].T @ T_true[:3, :3])
                 max_dp, max_dr = max(max_dp, dp), max(max_dr, dr)
                 T_render = T_true
             else:

@@ -54,6 +54,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from artrecon.geometry import rotation_about
 from sim import robot, views
 from sim.camera import mujoco_camera_intrinsics
 from sim.scene import Scene, load_scene
@@ -175,7 +176,7 @@ class JointEstimate:
         if np.linalg.norm(perp) < 1e-6:
             perp = np.cross(self.axis, [1.0, 0.0, 0.0])
         perp /= np.linalg.norm(perp)
-        axis = _rot(perp, np.deg2rad(degrees)) @ self.axis
+        axis = rotation_about(perp, np.deg2rad(degrees)) @ self.axis
         return JointEstimate(self.type, axis, self.point, f"{self.source}, tilted {degrees:g} deg",
                              self.name)
 
@@ -183,7 +184,7 @@ class JointEstimate:
         """``T_world`` (4, 4) of the motion by ``amount`` (rad or m) about/along the axis."""
         T = np.eye(4)
         if self.type == "revolute":
-            R = _rot(self.axis, amount)
+            R = rotation_about(self.axis, amount)
             T[:3, :3], T[:3, 3] = R, self.point - R @ self.point
         else:
             T[:3, 3] = amount * self.axis
@@ -237,17 +238,6 @@ def joint_estimate_from_model(model, joint: int = 0):
 
 
 # --- small geometry ---------------------------------------------------------------------------
-
-
-def _rot(axis, angle: float) -> np.ndarray:
-    a = np.asarray(axis, dtype=float)
-    a = a / np.linalg.norm(a)
-    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
-
-
-def _rot_angle(R: np.ndarray) -> float:
-    return float(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))
 
 
 def _pose(model, data, body: int) -> np.ndarray:
@@ -446,7 +436,7 @@ def _grasp_frame(point, normal, roll_deg: float) -> np.ndarray:
     ref = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
     x = np.cross(ref, z)
     x /= np.linalg.norm(x)
-    x = _rot(z, np.deg2rad(roll_deg)) @ x
+    x = rotation_about(z, np.deg2rad(roll_deg)) @ x
     T = np.eye(4)
     T[:3, 0], T[:3, 1], T[:3, 2] = x, np.cross(z, x), z
     T[:3, 3] = np.asarray(point, float) + GRASP_STANDOFF * np.asarray(normal, float)

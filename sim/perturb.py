@@ -44,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
+from artrecon.io import read_ply
 from sim.scene import Scene
 
 #: Neutral values: a perturbation at these does nothing.
@@ -382,22 +383,6 @@ def corrupt_matches(points_b: np.ndarray, fraction: float,
     out[order] = pb[np.roll(order, 1)]
     wrong[order] = True
     return out, wrong
-
-
-def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """Points, normals, colours of a PLY written by :func:`artrecon.reconstruct.write_ply`."""
-    data = Path(path).read_bytes()
-    head, body = data.split(b"end_header\n", 1)
-    props = [ln.split()[-1].decode() for ln in head.splitlines() if ln.startswith(b"property")]
-    types = ["u1" if p in ("red", "green", "blue") else "<f4" for p in props]
-    rec = np.frombuffer(body, dtype=list(zip(props, types, strict=True)))
-
-    def cols(names, dtype):
-        return np.column_stack([rec[c] for c in names]).astype(dtype) \
-            if all(c in props for c in names) else None
-
-    return (cols("xyz", float), cols(("nx", "ny", "nz"), float),
-            cols(("red", "green", "blue"), np.uint8))
 
 
 def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0,

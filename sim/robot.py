@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from artrecon.geometry import pose, quat_wxyz_to_matrix
 from sim.camera import T_GL_CV
 
 log = logging.getLogger(__name__)
@@ -339,21 +340,6 @@ class IKResult:
     """angle between the frame and the target orientation (rad); 0 for position-only solves"""
 
 
-def _quat_to_matrix(quat) -> np.ndarray:
-    w, x, y, z = np.asarray(quat, dtype=float) / np.linalg.norm(quat)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def _pose(R: np.ndarray, p: np.ndarray) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, p
-    return T
-
-
 def _check_pose(T, name: str) -> np.ndarray:
     T = np.asarray(T, dtype=float)
     if T.shape != (4, 4):
@@ -617,11 +603,11 @@ def load_arm_kinematics(model, spec: ArmSpec | None = None) -> ArmKinematics:
     mujoco.mj_kinematics(model, data)
 
     def body_pose(b):
-        return _pose(data.xmat[b].reshape(3, 3).copy(), data.xpos[b].copy())
+        return pose(data.xmat[b].reshape(3, 3).copy(), data.xpos[b].copy())
 
     T_world_railbody = body_pose(rail_b)
     T_world_base = body_pose(base_b)
-    T_railbody_joint = _pose(np.eye(3), model.jnt_pos[rail_j].copy())
+    T_railbody_joint = pose(np.eye(3), model.jnt_pos[rail_j].copy())
     T_world_railjoint = T_world_railbody @ T_railbody_joint
     # Arm bodies between the rail and the base must be rigid: everything on the carriage.
     b = base_b
@@ -634,7 +620,7 @@ def load_arm_kinematics(model, spec: ArmSpec | None = None) -> ArmKinematics:
         b = int(model.body_parentid[b])
     if model.body_jntnum[base_b]:
         raise ValueError(f"arm base body {p + spec.base_body!r} must be fixed to the carriage")
-    T_base_frame0 = _pose(np.eye(3), np.array([0.0, 0.0, spec.shoulder_height]))
+    T_base_frame0 = pose(np.eye(3), np.array([0.0, 0.0, spec.shoulder_height]))
     T_railjoint_frame0 = np.linalg.inv(T_world_railjoint) @ T_world_base @ T_base_frame0
 
     def se3(T):
@@ -643,7 +629,7 @@ def load_arm_kinematics(model, spec: ArmSpec | None = None) -> ArmKinematics:
     def inertia(body):
         if model.body_mass[body] <= 0:
             return pin.Inertia.Zero()
-        R = _quat_to_matrix(model.body_iquat[body])
+        R = quat_wxyz_to_matrix(model.body_iquat[body])
         return pin.Inertia(float(model.body_mass[body]), model.body_ipos[body].copy(),
                            R @ np.diag(model.body_inertia[body]) @ R.T)
 
@@ -664,8 +650,8 @@ def load_arm_kinematics(model, spec: ArmSpec | None = None) -> ArmKinematics:
                                            pin.FrameType.OP_FRAME))
     frames["frame0"] = pm.addFrame(pin.Frame("frame0", jid, se3(T_railjoint_frame0),
                                              pin.FrameType.OP_FRAME))
-    T_link_camgl = _pose(_quat_to_matrix(model.cam_quat[cam]), model.cam_pos[cam].copy())
-    T_link_site = _pose(_quat_to_matrix(model.site_quat[site]), model.site_pos[site].copy())
+    T_link_camgl = pose(quat_wxyz_to_matrix(model.cam_quat[cam]), model.cam_pos[cam].copy())
+    T_link_site = pose(quat_wxyz_to_matrix(model.site_quat[site]), model.site_pos[site].copy())
     if spec.urdf is not None:
         add_chain = _add_urdf_chain
     else:

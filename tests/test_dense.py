@@ -8,6 +8,7 @@ from render_fixture import align_to_truth
 from scipy.spatial import cKDTree
 
 from artrecon import dense
+from artrecon.io import read_ply
 
 #: Median distance of dense points to the true surface, as a fraction of the camera distance
 #: (0.5 m): 0.4% = 2 mm. Measured: about 1.1 mm (downsampled SGBM, 20-degree baselines).
@@ -15,18 +16,6 @@ DENSE_MEDIAN_GATE = 0.002
 #: Share of the visible object surface within 4 mm of a dense point. Measured: about 0.85-0.9
 #: for 36 views (the faces resting on the table and the lid's underside are not visible).
 COVERAGE_GATE = 0.6
-
-
-def read_ply(path):
-    """Points, normals, colours of a PLY written by artrecon.reconstruct.write_ply."""
-    data = open(path, "rb").read()
-    head, body = data.split(b"end_header\n", 1)
-    props = [ln.split()[-1].decode() for ln in head.splitlines() if ln.startswith(b"property")]
-    types = [("u1" if p in ("red", "green", "blue") else "<f4") for p in props]
-    rec = np.frombuffer(body, dtype=list(zip(props, types, strict=True)))
-    pts = np.column_stack([rec["x"], rec["y"], rec["z"]]).astype(float)
-    nrm = np.column_stack([rec["nx"], rec["ny"], rec["nz"]]).astype(float)
-    return pts, nrm
 
 
 def ring(n=24, radius=1.0, height=0.6):
@@ -115,7 +104,7 @@ def test_dense_points_lie_on_the_true_surface(rendered, reconstruction_sfm):
     for c in ("a", "b"):
         truth = rendered[c]
         S, _ = align_to_truth(out / c / "sparse" / "0", truth)
-        pts, nrm = read_ply(out / c / "dense.ply")
+        pts, nrm, _ = read_ply(out / c / "dense.ply")
         world = S.apply(pts)
         tree = cKDTree(truth.object_points)
         dist, idx = tree.query(world)

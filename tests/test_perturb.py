@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from artrecon.reconstruct import write_ply
+from artrecon.io import read_ply, write_ply
 from sim import perturb
 from sim.perturb import Perturbation
 from sim.scene import load_scene
@@ -184,7 +184,7 @@ def test_read_ply_reads_write_ply(tmp_path):
     rng = np.random.default_rng(0)
     pts, nrm = rng.normal(size=(20, 3)), rng.normal(size=(20, 3))
     col = rng.integers(0, 255, size=(20, 3)).astype(np.uint8)
-    p, n, c = perturb.read_ply(write_ply(tmp_path / "x.ply", pts, nrm, col))
+    p, n, c = read_ply(write_ply(tmp_path / "x.ply", pts, nrm, col))
     np.testing.assert_allclose(p, pts, atol=1e-6)
     np.testing.assert_allclose(n, nrm, atol=1e-6)
     np.testing.assert_array_equal(c, col)

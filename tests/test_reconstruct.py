@@ -10,9 +10,10 @@ from render_fixture import align_to_truth, axis_errors
 from artrecon import features
 from artrecon.cli import main
 from artrecon.errors import InputError
+from artrecon.io import write_ply
 from artrecon.model import ArticulatedModel
 from artrecon.procrustes import Similarity
-from artrecon.reconstruct import merge_equivalent_links, reconstruct, write_ply
+from artrecon.reconstruct import merge_equivalent_links, reconstruct
 from artrecon.segment import Segmentation
 
 #: Gates on the rendered hinge (30 degrees of motion). Measured with SfM from images:
