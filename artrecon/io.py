@@ -424,3 +424,14 @@ def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarra
     if points is None:
         raise InputError(f"{path}: the PLY has no x, y, z properties")
     return points, cols(("nx", "ny", "nz"), float), cols(("red", "green", "blue"), np.uint8)
+
+
+def read_json(path: str | Path):
+    """The JSON document in ``path``; InputError naming the file when it is missing or not JSON."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{path} does not exist") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path} is not valid JSON ({exc})") from exc

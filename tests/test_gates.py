@@ -20,7 +20,8 @@ from pathlib import Path
 import pytest
 
 import sim  # noqa: F401
-from sim import evaluate, report
+from sim import evaluate
+from sim.evaluate import report
 
 #: Views per full capture ring in the gates (see the module docstring).
 GATE_VIEWS = int(os.environ.get("ARTRECON_GATE_VIEWS", "18"))

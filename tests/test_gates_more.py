@@ -257,9 +257,9 @@ def test_manipulation_grasps_a_moving_joint_not_a_static_first_one(monkeypatch):
                  "cabinet_drawer", "tracking_max_deg": 0.0, "path_error_max_mm": 0.0,
                  "estimate": {}}, {"build_s": 0.0}, False)
 
-    monkeypatch.setattr(evaluate, "manipulation_stage", stage)
+    monkeypatch.setattr(evaluate.runner, "manipulation_stage", stage)
     result = {"joints": out["joints"], "cached_stages": []}
-    man = evaluate._manipulation(scene, model, result, None, [], None, None, "")
+    man = evaluate.runner._manipulation(scene, model, result, None, [], None, None, "")
     assert calls == [(0, {"swapped": False, "true_joint": "drawer_slide"})]
     assert man["joint_target"] == "drawer_slide" and man["passes"]
 

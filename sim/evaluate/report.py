@@ -8,7 +8,7 @@ Pictures are drawn with OpenCV (matplotlib is not a dependency):
 - ``<scene>_errors.png``: a bar per figure, as a fraction of its gate (the line at 1.0): green
   bars pass, red bars fail, the value written beside each.
 
-Every file is written atomically (:mod:`sim.cache`).
+Every file is written whole or not at all (:mod:`artrecon.io`).
 """
 
 from __future__ import annotations
@@ -21,7 +21,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from sim import cache
+from artrecon.io import write_bytes_atomic, write_json_atomic
+from sim.evaluate.gates import GATES
+from sim.scene import load_scene
 
 log = logging.getLogger(__name__)
 
@@ -66,8 +68,8 @@ def jsonable_scene(result: dict) -> dict:
 def write_results(results: dict, out_dir: Path) -> None:
     """``results.json`` and ``results.md`` in ``out_dir``."""
     out_dir = Path(out_dir)
-    cache.write_json_atomic(out_dir / "results.json", _clean(results))
-    cache.write_bytes_atomic(out_dir / "results.md", markdown(results).encode())
+    write_json_atomic(out_dir / "results.json", _clean(results))
+    write_bytes_atomic(out_dir / "results.md", markdown(results).encode())
 
 
 def _f(v, digits: int = 2, unit: str = "") -> str:
@@ -125,6 +127,27 @@ def tree_lines(r: dict) -> list[str]:
     return out
 
 
+def status(r: dict) -> str:
+    """A scene's status cell: ``PASS``, ``FAIL (n gates)`` or ``ERROR <stage>``."""
+    if r.get("error"):
+        return "ERROR " + r["error"][:60]
+    if r.get("passed") is None:
+        return "-"
+    failed = r.get("failed_gates") or []
+    return "PASS" if r["passed"] else f"FAIL ({len(failed)} gate{'s' if len(failed) > 1 else ''})"
+
+
+def verdict_lines(r: dict) -> list[str]:
+    """The verdict of a scene for results.md: PASS, or FAIL with each failed gate."""
+    if r.get("passed") is None:
+        return []
+    if r["passed"]:
+        return ["**PASS**: every gate met"]
+    return ["**FAIL**: " + "; ".join(
+        f"{g['subject']}: {g['gate']} {_f(g['figure'], 3)} (limit {_f(g['limit'], 3)})"
+        for g in r.get("failed_gates") or [])]
+
+
 def summary_rows(results: dict) -> list[list[str]]:
     """One row per (scene, true moving joint): the headline figures in report units."""
     rows = []
@@ -140,7 +163,7 @@ def summary_rows(results: dict) -> list[list[str]]:
                 _f(hidden.get("completeness"), 2),
                 _f((r.get("camera_pose_error") or {}).get("position_median_mm"), 1),
                 _f(r.get("scale_error_pct"), 2), tree_verdict(r), man_s, _f(r.get("wall_s"), 0),
-                "ERROR " + r["error"][:60] if r.get("error") else "ok"]
+                status(r)]
         joints = r.get("joints") or [{}]
         for j in joints:
             jrow = [j.get("name", "-"), f"{j.get('type_true', '-')}/"
@@ -185,6 +208,7 @@ def markdown(results: dict) -> str:
         out += ["", "Gates: " + ", ".join(f"{k} {v}" for k, v in gates.items())]
     for name, r in results["scenes"].items():
         out += ["", f"## {name}", ""]
+        out += verdict_lines(r) + ([""] if r.get("passed") is not None else [])
         if r.get("error"):
             out += [f"**Error** in stage `{r.get('error_stage')}`: {r['error']}", ""]
         reg = r.get("registration") or {}
@@ -320,6 +344,8 @@ def error_bars(result: dict, gates: dict) -> list[tuple[str, float | None, float
     seg = result.get("segmentation_accuracy")
     bars.append(("segmentation miss", None if seg is None else 1.0 - seg,
                  1.0 - gates["segmentation_accuracy"], ""))
+    bars.append(("points off the object", (result.get("segmentation") or {}).get(
+        "off_surface_share"), gates["off_object_share"], ""))
     man = result.get("manipulation") or {}
     bars.append(("manipulation rel. err", man.get("relative_error"),
                  gates["manipulation_relative_error"], ""))
@@ -360,15 +386,12 @@ def _write_png(path: Path, rgb: np.ndarray) -> None:
     ok, buf = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     if not ok:
         raise RuntimeError(f"OpenCV could not encode {path}")
-    cache.write_bytes_atomic(path, buf.tobytes())
+    write_bytes_atomic(path, buf.tobytes())
 
 
 def write_scene_pictures(result: dict, out_dir: Path) -> list[Path]:
     """The two pictures of a scene (whatever its result allows: none if it failed early)."""
     from PIL import Image
-
-    from sim.evaluate import GATES
-    from sim.scene import load_scene
 
     out_dir = Path(out_dir)
     name = result["scene"]

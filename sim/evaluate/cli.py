@@ -1,0 +1,152 @@
+"""``python -m sim.evaluate``: the command line."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from sim import perturb
+from sim.evaluate import report
+from sim.evaluate.config import EvalConfig
+from sim.evaluate.runner import run
+from sim.scene import Scene, SceneError, list_scenes, load_scene, physics_warnings
+
+#: Simulated time stepped per scene to look for MuJoCo warnings (the Menagerie check).
+CHECK_SECONDS = 1.0
+
+
+def validate(names: list[str]) -> int:
+    """The ``--validate-only`` mode: compile, check, step physics, print the ground truth."""
+    rows, bad = [], []
+    for name in names:
+        try:
+            scene = load_scene(name)
+            warnings = physics_warnings(scene, CHECK_SECONDS)
+            if warnings:
+                raise SceneError(f"{scene.path}: MuJoCo warnings in {CHECK_SECONDS:g} s of "
+                                 f"physics: {warnings}; fix: look for interpenetrating "
+                                 f"collision geoms, bad inertias or unstable gains")
+        except SceneError as err:
+            bad.append(name)
+            print(f"BAD  {name}: {err}", file=sys.stderr)
+            continue
+        print(f"ok   {scene.name}: {len(scene.links)} links "
+              f"({', '.join(li.name for li in scene.links)}), {len(scene.joints)} joints, "
+              f"{scene.model.nbody} bodies, {scene.model.ngeom} geoms, no warnings in "
+              f"{CHECK_SECONDS:g} s")
+        rows += ground_truth_rows(scene)
+    if rows:
+        print()
+        print(format_table(rows))
+    if bad:
+        print(f"\n{len(bad)} of {len(names)} scenes are bad: {', '.join(bad)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _fmt(v: np.ndarray, digits: int = 3) -> str:
+    return "(" + ", ".join(f"{x:+.{digits}f}" for x in v) + ")"
+
+
+def ground_truth_rows(scene: Scene) -> list[list[str]]:
+    """Table rows (one per joint) of a scene's ground truth, human units (deg, mm)."""
+    rows = []
+    for j in scene.joints:
+        unit, scale = ("deg", np.rad2deg(1.0)) if j.type == "revolute" else ("mm", 1000.0)
+        rows.append([
+            scene.name, j.name, j.type, f"{j.parent} -> {j.child}", _fmt(j.axis),
+            _fmt(j.point), f"{j.value_a * scale:.1f} {unit}", f"{j.value_b * scale:.1f} {unit}",
+            f"{j.motion * scale:+.1f} {unit}",
+            f"[{j.range[0] * scale:.1f}, {j.range[1] * scale:.1f}] {unit}"])
+    if not rows:
+        rows.append([scene.name, "-", "rigid", "object", "-", "-", "-", "-", "-", "-"])
+    return rows
+
+
+def format_table(rows: list[list[str]]) -> str:
+    """A plain-text table with a header."""
+    header = ["scene", "joint", "type", "parent -> child", "axis (world, at A)",
+              "point on axis (m)", "A", "B", "B - A", "range"]
+    table = [header, *rows]
+    widths = [max(len(r[i]) for r in table) for i in range(len(header))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip()
+             for r in table]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = argparse.ArgumentParser(
+        prog="python -m sim.evaluate",
+        description="Capture, reconstruct, register and manipulate each scene, score everything "
+                    "against ground truth and write a report (results.json, results.md, PNGs).")
+    parser.add_argument("scenes", nargs="*",
+                        help=f"bundled scene names or MJCF paths (default: all of "
+                             f"{list_scenes()})")
+    parser.add_argument("--out", type=Path, default=Path("runs/eval"),
+                        help="report folder; stage results are cached in OUT/cache "
+                             "(default runs/eval)")
+    parser.add_argument("--views", type=int, default=36,
+                        help="views per full capture ring (default 36)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of every stage (default 0)")
+    parser.add_argument("--use-poses", action="store_true",
+                        help="reconstruct with the arm's FK camera poses instead of SfM")
+    parser.add_argument("--no-manipulate", action="store_true", help="skip the manipulation")
+    parser.add_argument("--validate-only", action="store_true",
+                        help="only compile and check the scenes and print their ground truth")
+    parser.add_argument("--report-only", action="store_true",
+                        help="exploratory run: report the verdict but exit 0 even when a scene "
+                             "fails a gate")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    perturb.add_arguments(parser)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    names = args.scenes or list_scenes()
+    if args.validate_only:
+        return validate(names)
+    if args.views < 4:
+        parser.error(f"--views must be at least 4, got {args.views}")
+    try:
+        perturbation = perturb.from_args(args)
+    except ValueError as err:
+        parser.error(str(err))
+    ev = EvalConfig(views=args.views, seed=args.seed, use_poses=args.use_poses,
+                    manipulate=not args.no_manipulate, progress=not args.quiet,
+                    perturb=perturbation)
+    try:
+        results = run(names, ev, args.out, argv)
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: the scenes finished so far are in {args.out / 'results.json'}; "
+              "run the same command again to go on (finished stages come from the cache)",
+              file=sys.stderr)
+        return 130
+    print()
+    print(report.terminal_table(results))
+    print(f"\nreport: {args.out / 'results.json'}, {args.out / 'results.md'}")
+    return finish(results, report_only=args.report_only)
+
+
+def finish(results: dict, report_only: bool = False) -> int:
+    """Print the verdict's last line and return the exit status: 1 if any scene failed a gate
+    or raised an error (0 with ``report_only``, for exploratory runs)."""
+    scenes = results["scenes"]
+    failed = {n: r for n, r in scenes.items() if r.get("error") or not r.get("passed", False)}
+    if not failed:
+        print(f"PASS: all {len(scenes)} scene(s) met every gate")
+        return 0
+    for n, r in failed.items():
+        why = (r["error"] if r.get("error") else
+               "; ".join(f"{g['subject']}: {g['gate']}" for g in r.get("failed_gates") or []))
+        print(f"FAIL {n}: {why}", file=sys.stderr)
+    names = ", ".join(f"{n} ({'error' if r.get('error') else ', '.join(sorted({g['gate'] for g in r.get('failed_gates') or []}))})"  # noqa: E501
+                      for n, r in failed.items())
+    print(f"FAIL: {len(failed)} of {len(scenes)} scene(s) missed a gate or failed: {names}"
+          + (" (--report-only: exit status 0)" if report_only else ""))
+    return 0 if report_only else 1

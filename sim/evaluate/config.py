@@ -1,0 +1,43 @@
+"""Settings of one evaluation run (:class:`EvalConfig`), its stage names and its error."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from sim import perturb
+
+#: Stage names of ``timings_s``, in pipeline order.
+STAGES = ("capture_a", "capture_b", "sfm", "dense", "matching", "segmentation_joints",
+          "assign_points", "registration", "manipulation", "scoring")
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """Settings of one evaluation run."""
+
+    views: int = 36
+    """views per full capture ring (sim.capture n_views)"""
+    seed: int = 0
+    """seed of the capture, reconstruction, registration, manipulation and surface samples"""
+    use_poses: bool = False
+    """reconstruct from the arm's FK camera poses instead of SfM from the images alone"""
+    manipulate: bool = True
+    """run the manipulation stage"""
+    progress: bool = True
+    """tqdm progress bars"""
+    parallel_capture: bool = True
+    """capture configuration B in a second process while this one captures A (the capture is
+    mostly single-threaded: planning, physics, PNG writing); the images are the same"""
+    perturb: perturb.Perturbation = field(default_factory=perturb.Perturbation)
+    """perturbations of a robustness run (sim.perturb; default none)"""
+
+
+class StageError(RuntimeError):
+    """A stage of one scene's evaluation failed; ``stage`` names it."""
+
+    def __init__(self, stage: str, message: str):
+        super().__init__(f"{stage}: {message}")
+        self.stage = stage
+        self.message = message
+
+

@@ -1,0 +1,131 @@
+"""The accuracy gates: one table, one verdict, used by the main job and by the tests alike.
+
+``python -m sim.evaluate`` marks every scene PASS or FAIL with :func:`verdict` and exits non-zero
+when one fails; tests/test_gates.py runs that same default configuration and asserts the same
+verdict, gate by gate. Never loosen a limit to pass: a scene that misses one is a finding, and it
+stays visible as a FAIL row with its figure and the limit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+#: The limits (issue 19). Angles in degrees, lengths in millimetres, shares in [0, 1].
+GATES = {
+    # every moving joint, estimated from the model and paired with the true one by its links
+    "axis_angle_deg": 0.5,
+    "axis_position_mm": 2.0,  # revolute joints: distance between the estimated and true axes
+    "state_error_deg": 0.5,
+    "state_error_mm": 1.0,
+    # the model's points against the rendered link labels (sim.evaluate.scoring)
+    "segmentation_accuracy": 0.97,
+    "off_object_share": 0.05,
+    # the arm's motion along the estimated joint, measured along the true joint
+    "manipulation_relative_error": 0.05,
+}
+
+
+@dataclass(frozen=True)
+class GateCheck:
+    """One gate applied to one figure of a scene."""
+
+    gate: str
+    """name: a key of :data:`GATES`, or a structural gate (``error``, ``type``, ``joint_found``,
+    ``tree``, ``invented_joints``, ``manipulation``)"""
+    subject: str
+    """what it was applied to: a joint's name, ``segmentation``, ``model``, ``manipulation`` or
+    the stage that failed"""
+    figure: float | str | None
+    """the measured figure (None: not measured)"""
+    limit: float | str | None
+    """the limit it must meet"""
+    passed: bool
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def describe(self) -> str:
+        fig = f"{self.figure:.3g}" if isinstance(self.figure, float) else str(self.figure)
+        lim = f"{self.limit:g}" if isinstance(self.limit, float) else str(self.limit)
+        return f"{self.subject}: {self.gate} {fig} (limit {lim})"
+
+
+def _at_most(gate: str, subject: str, figure, limit: float) -> GateCheck:
+    ok = figure is not None and float(figure) <= limit
+    return GateCheck(gate, subject, None if figure is None else float(figure), limit, ok)
+
+
+def _at_least(gate: str, subject: str, figure, limit: float) -> GateCheck:
+    ok = figure is not None and float(figure) >= limit
+    return GateCheck(gate, subject, None if figure is None else float(figure), limit, ok)
+
+
+def joint_checks(row: dict) -> list[GateCheck]:
+    """The gates of one true moving joint's row (:func:`sim.evaluate.scoring.score_joints`)."""
+    name = row["name"]
+    if row.get("estimated_joint") is None:
+        return [GateCheck("joint_found", name, "missed", "estimated", False)]
+    out = [GateCheck("type", name, row.get("type_estimated"), row["type_true"],
+                     bool(row.get("type_correct")))]
+    out.append(_at_most("axis_angle_deg", name, row.get("axis_angle_deg"),
+                        GATES["axis_angle_deg"]))
+    if row["type_true"] == "revolute":
+        out.append(_at_most("axis_position_mm", name, row.get("axis_position_mm"),
+                            GATES["axis_position_mm"]))
+    unit = row.get("state_error_unit", "deg")
+    out.append(_at_most(f"state_error_{unit}", name, row.get("state_error"),
+                        GATES[f"state_error_{unit}"]))
+    return out
+
+
+def joint_passes(row: dict) -> bool:
+    """Whether one joint row meets every joint gate."""
+    return all(c.passed for c in joint_checks(row))
+
+
+def checks(result: dict, manipulate: bool = True) -> list[GateCheck]:
+    """Every gate of one scene's result (``sim.evaluate`` results.json scene entry).
+
+    Parameters
+    ----------
+    result : dict
+        A scene's result as :func:`sim.evaluate.runner.evaluate_scene` returns it.
+    manipulate : bool
+        Whether the run manipulated (``--no-manipulate`` leaves the manipulation ungated).
+    """
+    if result.get("error"):
+        return [GateCheck("error", result.get("error_stage") or "scene", result["error"],
+                          "no error", False)]
+    out: list[GateCheck] = []
+    rows = result.get("joints") or []
+    for row in rows:
+        out += joint_checks(row)
+    swapped = [r["name"] for r in rows if r.get("links_swapped")]
+    tree_ok = bool(result.get("tree_correct")) and not swapped
+    out.append(GateCheck("tree", "kinematic tree",
+                         "exact" if tree_ok else ("parent and child swapped at " +
+                                                  ", ".join(swapped) if swapped else "wrong"),
+                         "exact (each link's parent)", tree_ok))
+    invented = [j["name"] for j in result.get("invented_joints") or []]
+    out.append(GateCheck("invented_joints", "kinematic tree", ", ".join(invented) or "none",
+                         "none", not invented))
+    out.append(_at_least("segmentation_accuracy", "segmentation",
+                         result.get("segmentation_accuracy"), GATES["segmentation_accuracy"]))
+    seg = result.get("segmentation") or {}
+    out.append(_at_most("off_object_share", "segmentation", seg.get("off_surface_share"),
+                        GATES["off_object_share"]))
+    if manipulate:
+        man = result.get("manipulation") or {}
+        if man.get("requested") is None:
+            out.append(GateCheck("manipulation", "manipulation",
+                                 man.get("reason") or "not run", "a motion", False))
+        else:
+            out.append(_at_most("manipulation_relative_error", "manipulation",
+                                man.get("relative_error"), GATES["manipulation_relative_error"]))
+    return out
+
+
+def verdict(result: dict, manipulate: bool = True) -> dict:
+    """``{"passed": bool, "failed": [GateCheck.to_dict(), ...]}`` of one scene."""
+    failed = [c for c in checks(result, manipulate) if not c.passed]
+    return {"passed": not failed, "failed": [c.to_dict() for c in failed]}

@@ -1,0 +1,258 @@
+"""One scene's evaluation and a run over scenes: the harness's main job.
+
+Per scene (a bundled name or an MJCF path; default: every bundled scene):
+
+1. **capture** both configurations with the arm (:func:`sim.capture.capture`);
+2. **reconstruct** the articulated model from the two image sets (:func:`artrecon.reconstruct`),
+   in configuration A's SfM frame (or, with ``--use-poses``, from the arm's FK poses);
+3. **register** it to the robot (world) frame in metres: the similarity between the SfM camera
+   centres of configuration A and the FK camera positions of ``cameras.json``
+   (:func:`artrecon.register.register_camera_centres`). The paper's route (hand-eye calibration
+   from the capture + PnP of the last image of A) is run beside it and its disagreement reported;
+   when it fails the report says so (``null`` and the reason);
+4. **manipulate**: the arm grasps the child link of the scene's first moving joint that has an
+   estimated joint (:func:`manipulation_target`; a static joint has none) at the point
+   :func:`sim.manipulate.manipulate` chooses by default (preferring one hidden from the wrist camera
+   at the last view of A, where the arm is after the capture) and moves it along the *estimated*
+   joint by the *estimated* motion A -> B;
+5. **score** everything against the ground truth (:mod:`sim.metrics`), see :func:`score_scene`.
+
+Stage results are cached under ``OUT/cache/<stage>-<hash>/`` by the hash of their inputs
+(:mod:`sim.cache`): scene file and every file it references, configuration, views, seed, the
+stage's settings, the package version and the source of the code that computes it. A second run
+redoes only what changed; ``timings_s`` then reports the time the cached stage took when it was
+built (``cached_stages`` names them). The report (:mod:`sim.report`) goes to ``OUT``:
+``results.json``, ``results.md``, ``<scene>_reconstruction.png``, ``<scene>_errors.png``; the
+table is printed at the end. A scene that fails records its error (stage and message) and the run
+goes on; the exit status is 1 if any scene failed.
+
+Ground truth used for scoring (never given to ``artrecon``):
+
+- joints: :class:`sim.scene.Joint` (world axis and point at configuration A, values in A and B);
+  each moving joint is paired with the estimated joint between the same two links (then, for the
+  rest, by axis geometry: :func:`pair_joints`); ``tree_correct`` says whether every pair joins
+  the right links, ``invented_joints`` lists estimates left over, ``static_joints`` the joints
+  that did not move (never expected to be found: their child link is one rigid body with its
+  parent, and is scored as part of it, :func:`rigid_bodies`);
+- true surfaces: the object's visual meshes placed by MuJoCo at configuration A, sampled
+  uniformly by area (:data:`SURFACE_SPACING_M`, fixed seed), each sample labelled with its link.
+  They score the model's accuracy and completeness;
+- link labels: ``ground_truth/labels`` and ``ground_truth/depth`` of each capture (rendered at the
+  true camera poses). Segmentation accuracy gives every model point the link that most of the
+  views holding it show (:func:`segmentation_truth`), in the configuration the point was seen in
+  (``Link.observed_in``: a point of B is placed where B's reconstruction saw it, through B's own
+  registration); points no view holds on the object are off it (``off_surface_share``, left
+  out). Then :func:`sim.metrics.segmentation_accuracy` (best one-to-one renaming of the model's
+  links). ``segmentation.accuracy_nearest_surface_at_a`` keeps the earlier figure (every point
+  at A, nearest true surface sample within :data:`SEGMENTATION_MAX_DISTANCE_M`);
+- the hidden side: samples not visible from the last captured view of A (outside the image, or
+  behind the rendered depth of ``ground_truth/depth``);
+- camera poses: ``ground_truth/poses.json`` of the capture.
+
+``--validate-only`` keeps the old behaviour: compile every scene, step 1 s of physics, print the
+ground truth, no capture.
+"""
+
+from __future__ import annotations
+
+import datetime
+import logging
+import platform
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+
+from sim import cache, perturb
+from sim.evaluate import gates
+from sim.evaluate.config import EvalConfig
+from sim.evaluate.scoring import score_scene
+from sim.evaluate.stages import (
+    capture_stages,
+    manipulation_stage,
+    reconstruct_stage,
+    register_configuration,
+    register_stage,
+    versions,
+)
+from sim.scene import Scene, load_scene
+
+log = logging.getLogger(__name__)
+
+# ---------------------------------------------------------------------------- one scene
+
+
+def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
+    """Run and score one scene; never raises for a failing stage (``error`` says which)."""
+    from artrecon.model import ArticulatedModel
+
+    out_dir = Path(out_dir)
+    cache_root = out_dir / "cache"
+    result: dict = {"scene": name, "error": None, "error_stage": None, "timings_s": {},
+                    "cached_stages": [], "joints": [], "segmentation_accuracy": None,
+                    "manipulation": None}
+    timings = result["timings_s"]
+    stage = "load"
+    t_scene = time.perf_counter()
+    try:
+        scene = load_scene(name)
+        result["scene"] = scene.name
+        scene = perturb.apply_motion(scene, ev.perturb.motion_deg, ev.perturb.motion_mm)
+        result["scene_file"] = str(scene.path)
+        scene_hash = cache.scene_hash(scene.path)
+        result["scene_hash"] = scene_hash
+        sets, keys = {}, []
+        stage = "capture_a"
+        captures = capture_stages(scene, ev, cache_root, scene_hash)
+        for c in ("a", "b"):
+            stage = f"capture_{c}"
+            if isinstance(captures[c], BaseException):
+                raise captures[c]
+            folder, meta, hit = captures[c]
+            folder, key, pmeta = perturb.set_stage(folder, meta["key"], scene, ev.perturb,
+                                                   ev.seed, c, cache_root)
+            sets[c] = folder
+            keys.append(key)
+            if pmeta:
+                result[f"perturb_{c}"] = pmeta
+            timings[stage] = meta["build_s"]
+            result["cached_stages"] += [stage] if hit else []
+            result[f"capture_{c}"] = {k: meta[k] for k in
+                                      ("n_planned", "n_captured", "max_fk_position_error_mm",
+                                       "max_fk_rotation_error_deg") if k in meta}
+        result["_sets"] = {c: str(p) for c, p in sets.items()}
+        stage = "reconstruct"
+        model_dir, meta, hit = reconstruct_stage(sets["a"], sets["b"], tuple(keys), ev,
+                                                 cache_root, dict(scene.reconstruct_settings))
+        rt = meta.get("timings", {})
+        timings["sfm"] = rt.get("sfm_a", 0.0) + rt.get("sfm_b", 0.0)
+        timings["dense"] = rt.get("dense_a", 0.0) + rt.get("dense_b", 0.0)
+        timings["matching"] = rt.get("match", 0.0)
+        timings["segmentation_joints"] = rt.get("segment", 0.0) + rt.get("joints", 0.0)
+        timings["assign_points"] = rt.get("assign", 0.0)
+        result["reconstruct_timings_s"] = rt
+        result["cached_stages"] += ["sfm", "dense", "matching", "segmentation_joints",
+                                    "assign_points"] if hit else []
+        stage = "match_outliers"
+        model_dir, pmeta = perturb.outlier_stage(model_dir, meta["key"], ev.perturb, ev.seed,
+                                                 cache_root, dict(scene.reconstruct_settings))
+        if pmeta:
+            result["perturb_matches"] = pmeta
+        model = ArticulatedModel.load(model_dir / "model.json")
+        result["model_summary"] = {"links": len(model.links), "joints": len(model.joints),
+                                   **{k: model.metadata.get(k) for k in
+                                      ("registered_images", "num_images", "sparse_points",
+                                       "dense_points", "matches", "match_outliers",
+                                       "pose_agreement")}}
+
+        stage = "registration"
+        t = time.perf_counter()
+        reg = register_stage(model, model_dir, sets["a"], scene, ev.seed)
+        timings["registration"] = time.perf_counter() - t
+        result["registration"] = reg["summary"]
+        registered = reg["registered"]
+
+        stage = "scoring"
+        t = time.perf_counter()
+        # B's own registration places B's points where B's reconstruction saw them (scoring)
+        reg_b = register_configuration(model_dir, sets["b"], "b", ev.seed)[0].T_robot_model
+        scores = score_scene(scene, registered, reg["sfm_poses"], reg["T"], sets["a"], ev.seed,
+                             set_b=sets["b"], model=model, T_reg_b=reg_b)
+        timings["scoring"] = time.perf_counter() - t
+        result.update({k: v for k, v in scores.items() if not k.startswith("_")})
+        result["_arrays"] = {k: v for k, v in scores.items() if k.startswith("_")}
+        result["_registered"] = registered
+        result["_set_a"] = str(sets["a"])
+
+        if ev.manipulate:
+            stage = "manipulation"
+            result["manipulation"] = _manipulation(scene, registered, result, sets["a"], keys,
+                                                   ev, cache_root, scene_hash)
+            timings["manipulation"] = result["manipulation"].pop("_build_s", None)
+    except Exception as err:
+        result["error"] = f"{stage}: {type(err).__name__}: {err}"
+        result["error_stage"] = stage
+        result["traceback"] = traceback.format_exc()
+        log.error("%s failed in stage %s: %s", name, stage, err)
+    result["wall_s"] = time.perf_counter() - t_scene
+    v = gates.verdict(result, manipulate=ev.manipulate)
+    result["passed"], result["failed_gates"] = v["passed"], v["failed"]
+    return result
+
+
+def manipulation_target(scene: Scene, rows: list[dict]) -> dict | None:
+    """The joint row (:func:`score_joints`) of the joint to manipulate: the scene's first moving
+    joint that an estimated joint is paired with. Static joints have no row (nothing moved, so
+    nothing was estimated to follow); a moving joint the model missed is passed over for the next
+    one. None if no moving joint was estimated."""
+    by_name = {r["name"]: r for r in rows}
+    return next((by_name[j.name] for j in scene.moving_joints
+                 if by_name.get(j.name, {}).get("estimated_joint") is not None), None)
+
+
+def _manipulation(scene, registered, result, set_a, keys, ev, cache_root, scene_hash) -> dict:
+    """Manipulation entry of the results (requested/achieved in deg or mm)."""
+    row = manipulation_target(scene, result["joints"])
+    if row is None:
+        return {"requested": None, "achieved": None, "peak_force_n": None,
+                "reason": "no moving joint of the scene has an estimated joint paired with it: "
+                          "nothing to follow"}
+    idx = next(k for k, j in enumerate(registered.joints) if j.name == row["estimated_joint"])
+    res, meta, hit = manipulation_stage(scene, registered, idx, set_a, keys, ev, cache_root,
+                                        scene_hash, swapped=bool(row.get("links_swapped")),
+                                        true_joint=row["name"])
+    if hit:
+        result["cached_stages"].append("manipulation")
+    k = np.rad2deg(1.0) if res["joint_type"] == "revolute" else 1e3
+    unit = "deg" if res["joint_type"] == "revolute" else "mm"
+    requested, achieved = res["requested"] * k, res["achieved"] * k
+    rel = abs(achieved - requested) / abs(requested) if requested else None
+    return {"requested": requested, "achieved": achieved, "unit": unit,
+            "peak_force_n": res["peak_force"], "peak_torque_nm": res["peak_torque"],
+            "relative_error": rel,
+            "passes": rel is not None and rel <= gates.GATES["manipulation_relative_error"],
+            "joint_target": row["name"], "joint_moved": res["joint"],
+            "grasp_point": res["grasp_point"],
+            "grasp_hidden": res["grasp_hidden"], "grasp_visibility": res["grasp_visibility"],
+            "grasp_body": res["grasp_body"], "tracking_max_deg": res["tracking_max_deg"],
+            "path_error_max_mm": res["path_error_max_mm"], "estimate": res["estimate"],
+            "_build_s": meta["build_s"]}
+
+
+# ---------------------------------------------------------------------------- run
+
+
+def run_meta(ev: EvalConfig, command: str) -> dict:
+    """The ``meta`` record of a results.json: versions, settings, command, date, platform
+    (``scene_hashes`` is filled in as scenes run)."""
+    return {"versions": versions(), "seed": ev.seed, "views_per_ring": ev.views,
+            "use_poses": ev.use_poses, "manipulate": ev.manipulate,
+            "perturbation": ev.perturb.changed(), "command": command,
+            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "scene_hashes": {}, "gates": gates.GATES, "platform": platform.platform()}
+
+
+def run(names: list[str], ev: EvalConfig, out_dir: Path, argv: list[str] | None = None) -> dict:
+    """Evaluate scenes and write the report folder. Returns the results dict (results.json)."""
+    from tqdm import tqdm
+
+    from sim import report
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    results = {"scenes": {},
+               "meta": run_meta(ev, " ".join(["python -m sim.evaluate", *(argv or [])]))}
+    for name in tqdm(names, desc="scenes", unit="scene", disable=not ev.progress):
+        res = evaluate_scene(name, ev, out_dir)
+        results["meta"]["scene_hashes"][res["scene"]] = res.get("scene_hash")
+        try:
+            report.write_scene_pictures(res, out_dir)
+        except Exception as err:  # pictures must not sink the numbers
+            log.warning("%s: pictures failed: %s", res["scene"], err)
+            res["pictures_error"] = f"{type(err).__name__}: {err}"
+        results["scenes"][res["scene"]] = report.jsonable_scene(res)
+        report.write_results(results, out_dir)  # after every scene: a killed run keeps the rest
+    return results
+
+
