@@ -7,12 +7,17 @@ pycolmap's PatchMatch stereo needs CUDA, so this stage uses two-view stereo inst
 2. the pair is rectified with the SfM poses (OpenCV ``stereoRectify``) at a reduced resolution
    and OpenCV semi-global matching (``StereoSGBM``) gives a disparity map, its search range taken
    from the sparse points the two images share;
-3. disparities are back-projected to 3D; each image gets a depth map of its pair's points;
-4. multi-view consistency: a point is kept only if the depth maps of at least
-   ``min_consistent`` *other* images agree with its depth there (relative tolerance); the images
-   that agree, plus the pair, are the images that see it;
-5. the surviving points are merged on a voxel grid (position and colour averaged, visibility
-   united), and normals come from local PCA, oriented toward the cameras that see the point.
+3. disparities are back-projected to 3D (only those near the object: within
+   ``crop_radius`` of the cameras' focus point); each image gets a depth map of its pair's
+   points;
+4. the points are merged on a voxel grid (position and colour averaged);
+5. depth fusion: every merged point is checked against every depth map. A view whose depth
+   agrees with the point's (relative tolerance) sees it; a view whose depth map shows a surface
+   clearly *behind* the point looked through it. A point is kept when at least
+   ``min_consistent`` other views agree and few looked through it: the rim of foreground depth
+   that block matching leaves beside thin parts (edge fattening) floats in free space seen from
+   other directions. The views that agree are the images that see the point;
+6. normals come from local PCA, oriented toward the cameras that see the point.
 
 All thresholds are relative (depth ratios, pixels), so the stage works in the arbitrary scale of
 an SfM model. Because the views ring the object, the point set covers it all around, the back
@@ -54,13 +59,27 @@ class DenseConfig:
     """SGBM uniqueness margin in percent."""
     disparity_margin: float = 8.0
     """Pixels added on both sides of the sparse points' disparity range."""
+    edge_erosion_px: int = 2
+    """Pixels (downsampled) dropped on the near side of a depth edge in each disparity map: the
+    rim of foreground that block matching spreads onto the background (about half the block).
+    0 keeps them."""
+    edge_jump_px: float = 0.5
+    """Disparity step (pixels) that marks a depth edge for :attr:`edge_erosion_px` (at the
+    default rings a 0.5 px step is about 4 mm of depth, half a pliers' thickness)."""
     depth_tolerance: float = 0.01
     """Two depths agree when they differ by less than this fraction of the depth (1%: a few
     SGBM sub-pixel steps at the ring's baselines)."""
     min_consistent: int = 2
     """A point must agree with the depth maps of at least this many other images."""
-    check_views: int = 10
-    """Images (closest in viewing direction) checked for consistency per reference image."""
+    max_free_space_ratio: float = 0.25
+    """... and no more than this share of those images' count may have looked *through* it (their
+    depth map shows a surface further than the point along the ray, beyond the tolerance): the
+    rim of foreground depth SGBM leaves beside thin parts floats in free space seen from other
+    directions."""
+    crop_radius: float = 0.9
+    """Only points within this fraction of the median camera distance from the cameras' focus
+    point are kept (the object, the table around it and anything that can hide it; the room
+    beyond is background that no later stage needs densely)."""
     voxel_pixels: float = 1.5
     """Merge voxel edge, in downsampled pixels at the median camera distance to the focus."""
     normal_neighbours: int = 16
@@ -211,6 +230,15 @@ def _pair_points(vi: _View, vj: _View, img_i, img_j, sparse: np.ndarray, config:
               for im in (left, right)]
     disp = sgbm.compute(*padded)[:, pad_l:pad_l + w].astype(np.float32) / 16.0
     valid = inside & (disp > min_disp) & (disp < min_disp + num - 1)
+    if config.edge_erosion_px > 0:
+        # Block matching fattens the foreground: near a depth edge the window is dominated by
+        # the nearer surface, whose disparity spills a few pixels onto the farther one. Drop the
+        # pixels within edge_erosion_px of a clearly smaller disparity (a farther surface); other
+        # views, whose edges fall elsewhere on the object, see those points cleanly.
+        r = config.edge_erosion_px
+        far = np.where(valid, disp, np.float32(1e6))
+        nearest_far = cv2.erode(far, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
+        valid &= disp - nearest_far <= config.edge_jump_px
     pts_rect = cv2.reprojectImageTo3D(disp, Q)[valid]
     cols = left[valid][:, ::-1]  # BGR -> RGB
     X_cam = pts_rect @ R1  # rectified -> camera i (R1 maps camera i to rectified)
@@ -228,6 +256,33 @@ def _project(view: _View, K: np.ndarray, X: np.ndarray, w: int, h: int):
         v = np.rint(K[1, 1] * Xc[:, 1] / z + K[1, 2]).astype(np.int64, copy=False)
     inside = (z > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
     return u, v, z, inside
+
+
+def _zbuffer(u: np.ndarray, v: np.ndarray, z: np.ndarray, w: int, h: int) -> np.ndarray:
+    """(h, w) depth map holding the nearest of the depths ``z`` at pixels ``(u, v)`` (inf where
+    none falls)."""
+    pix = v * w + u
+    order = np.lexsort((z, pix))
+    pix, z = pix[order], z[order]
+    first = np.r_[True, pix[1:] != pix[:-1]]
+    D = np.full(h * w, np.inf)
+    D[pix[first]] = z[first]
+    return D.reshape(h, w)
+
+
+def _voxel_merge(P: np.ndarray, C: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points (n, 3) and colours (n, 3) averaged per cubic voxel of edge ``voxel``."""
+    keys = np.floor(P / voxel).astype(np.int64)
+    keys -= keys.min(axis=0)
+    dims = keys.max(axis=0) + 1
+    lin = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
+    order = np.argsort(lin, kind="stable")
+    lin = lin[order]
+    starts = np.flatnonzero(np.r_[True, lin[1:] != lin[:-1]])
+    counts = np.diff(np.r_[starts, len(lin)])[:, None]
+    Pm = np.add.reduceat(P[order], starts, axis=0) / counts
+    Cm = np.add.reduceat(C[order], starts, axis=0) / counts
+    return Pm, Cm
 
 
 def dense_points(sfm, config: DenseConfig = DenseConfig(), progress=None) -> DensePoints:
@@ -255,7 +310,9 @@ def dense_points(sfm, config: DenseConfig = DenseConfig(), progress=None) -> Den
     pid = np.array(list(rec.point3D_ids()))
     xyz = np.array([rec.points3D[i].xyz for i in pid]) if len(pid) else np.zeros((0, 3))
     index = {int(p): k for k, p in enumerate(pid)}
-    centre = focus_point(np.array([v.centre for v in views]), np.array([v.axis for v in views]))
+    centres = np.array([v.centre for v in views])
+    centre = focus_point(centres, np.array([v.axis for v in views]))
+    cam_dist = float(np.median(np.linalg.norm(centres - centre, axis=1)))
     partners = choose_partners(views, centre, config)
     if not partners:
         raise ReconstructionError("dense: no stereo pair among the registered images (neighbours"
@@ -270,7 +327,7 @@ def dense_points(sfm, config: DenseConfig = DenseConfig(), progress=None) -> Den
 
     h, w = img(next(iter(partners))).shape[:2]
     Ks = [_scaled_K(v.K, f) for v in views]
-    clouds, colours, depth = {}, {}, {}
+    clouds, colours, depth = [], [], {}
     it = sorted(partners.items())
     if progress is not None:
         from tqdm import tqdm
@@ -283,61 +340,47 @@ def dense_points(sfm, config: DenseConfig = DenseConfig(), progress=None) -> Den
             continue
         X, c = out
         u, v, z, inside = _project(views[i], Ks[i], X, w, h)
-        X, c, u, v, z = X[inside], c[inside], u[inside], v[inside], z[inside]
-        D = np.full(h * w, np.inf)
-        np.minimum.at(D, v * w + u, z)
-        depth[i] = D.reshape(h, w)
-        clouds[i], colours[i] = X, c
+        near = inside & (np.linalg.norm(X - centre, axis=1) < config.crop_radius * cam_dist)
+        if not near.any():
+            continue
+        depth[i] = _zbuffer(u[near], v[near], z[near], w, h)
+        clouds.append(X[near])
+        colours.append(c[near])
     if not clouds:
         raise ReconstructionError("dense: stereo matching gave no points on any image pair")
-    # Multi-view consistency against the depth maps of the closest other views.
-    names = [v.name for v in views]
-    axes = np.array([v.axis for v in views])
-    keep_pts, keep_cols, keep_vis = [], [], []
-    for i, X in clouds.items():
-        order = np.argsort(-(axes @ axes[i]))
-        others = [k for k in order if k != i and k in depth][: config.check_views]
-        agree = np.zeros(len(X), dtype=int)
-        vis = np.zeros((len(X), len(views)), dtype=bool)
-        vis[:, i] = True
-        for k in others:
-            u, v, z, inside = _project(views[k], Ks[k], X, w, h)
-            dk = np.full(len(X), np.inf)
-            dk[inside] = depth[k][v[inside], u[inside]]
-            ok = inside & (np.abs(dk - z) < config.depth_tolerance * z)
-            agree += ok
-            vis[:, k] |= ok
-        good = agree >= config.min_consistent
-        vis[good, partners[i]] = True
-        keep_pts.append(X[good])
-        keep_cols.append(colours[i][good])
-        keep_vis.append(vis[good])
-    P = np.concatenate(keep_pts)
-    C = np.concatenate(keep_cols).astype(float)
-    V = np.concatenate(keep_vis)
-    if len(P) < 10:
-        raise ReconstructionError(f"dense: only {len(P)} points agree across views; the SfM poses "
-                                  "may be wrong or the surfaces lack texture")
-    # Merge on a voxel grid about 1.5 downsampled pixels wide at the cameras' distance.
-    cam_dist = np.median([np.linalg.norm(v.centre - centre) for v in views])
+    P = np.concatenate(clouds)
+    C = np.concatenate(colours).astype(float)
+    # Merge on a voxel grid about 1.5 downsampled pixels wide at the cameras' distance, then check
+    # every merged point against every depth map (depth fusion): views whose depth agrees see it;
+    # a view that sees a surface clearly *behind* it looked through it (free space), as at the
+    # foreground-fattened rim SGBM leaves beside thin parts.
     voxel = config.voxel_pixels * cam_dist / Ks[0][0, 0]
-    keys = np.floor(P / voxel).astype(np.int64)
-    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.ravel()
-    n = len(counts)
-    Pm = np.zeros((n, 3))
-    Cm = np.zeros((n, 3))
-    np.add.at(Pm, inv, P)
-    np.add.at(Cm, inv, C)
-    Pm /= counts[:, None]
-    Cm /= counts[:, None]
-    Vm = np.zeros((n, V.shape[1]), dtype=bool)
-    np.logical_or.at(Vm, inv, V)
-    normals = estimate_normals(Pm, Vm, np.array([v.centre for v in views]),
-                               config.normal_neighbours)
-    log.info("dense: %d pairs, %d consistent points, %d after merging (voxel %.4g)",
-             len(clouds), len(P), n, voxel)
-    return DensePoints(Pm, normals, np.clip(np.rint(Cm), 0, 255).astype(np.uint8), Vm, names)
+    Pm, Cm = _voxel_merge(P, C, voxel)
+    n = len(Pm)
+    agree = np.zeros(n, dtype=np.int32)
+    through = np.zeros(n, dtype=np.int32)
+    vis = np.zeros((n, len(views)), dtype=bool)
+    tol = config.depth_tolerance
+    for k, Dk in depth.items():
+        u, v, z, inside = _project(views[k], Ks[k], Pm, w, h)
+        d = np.full(n, np.inf)
+        d[inside] = Dk[v[inside], u[inside]]
+        seen = np.isfinite(d)
+        ok = seen & (np.abs(d - z) < tol * z)
+        vis[:, k] = ok
+        agree += ok
+        through += seen & (d > (1.0 + tol) * z)
+    good = (agree >= config.min_consistent + 1) & (through <= config.max_free_space_ratio * agree)
+    if good.sum() < 10:
+        raise ReconstructionError(f"dense: only {int(good.sum())} points agree across views; the "
+                                  "SfM poses may be wrong or the surfaces lack texture")
+    Pm, Cm, vis = Pm[good], Cm[good], vis[good]
+    normals = estimate_normals(Pm, vis, centres, config.normal_neighbours)
+    log.info("dense: %d pairs, %d points, %d merged, %d consistent (voxel %.4g; %d dropped as "
+             "seen through)", len(depth), len(P), n, len(Pm), voxel,
+             int(((agree >= config.min_consistent + 1) & ~good).sum()))
+    return DensePoints(Pm, normals, np.clip(np.rint(Cm), 0, 255).astype(np.uint8), vis,
+                       [v.name for v in views])
 
 
 def estimate_normals(points: np.ndarray, visibility: np.ndarray, centres: np.ndarray,

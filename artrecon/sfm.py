@@ -7,10 +7,13 @@ optional camera poses. Stage output: :class:`SfMResult` holding a ``pycolmap.Rec
 across configurations) and ``OUT/colmap.log``.
 
 Image pairs. Exhaustive matching costs n^2/2 pairs and, on repeated texture, can fold a ring of
-cameras onto itself. We match instead a union of (a) a window of neighbours in file-name order
-(captures are written in order) and (b) retrieval pairs: for each image the images sharing most
-mutual nearest neighbours among a sample of its descriptors (a cheap stand-in for a vocabulary
-tree; it also closes the loop of a ring). ``matching="exhaustive"`` is available for small sets.
+cameras onto itself. With camera poses (the arm's forward kinematics) each image is matched with
+the images whose optical axes are nearest to its own (:func:`pose_pairs`: the views that overlap,
+neighbours on a ring and across rings). Without poses we match a union of (a) a window of
+neighbours in file-name order (captures are written in order) and (b) retrieval pairs: for each
+image the images sharing most mutual nearest neighbours among a sample of its descriptors (a
+cheap stand-in for a vocabulary tree; it also closes the loop of a ring).
+``matching="exhaustive"`` is available for small sets.
 
 Two modes:
 
@@ -56,7 +59,15 @@ class SfMConfig:
     faster (measured 0.28 -> 0.09 s per 640x480 image) but finds half the keypoints, and the
     small, flat links (pliers, scissors) already have the fewest cross-configuration matches."""
     matching: str = "auto"
-    """'auto' (sequential window + retrieval pairs), 'exhaustive', or 'sequential' (window only)."""
+    """'auto' (with camera poses: :func:`pose_pairs`; without: sequential window + retrieval
+    pairs), 'exhaustive', or 'sequential' (window only)."""
+    pose_neighbours: int = 8
+    """With camera poses: images matched with each image, those whose optical axes are nearest
+    (8: on the default rings, 10 degrees apart, the two neighbours on each side and the nearest
+    views of the rings above and below)."""
+    pose_max_angle_deg: float = 35.0
+    """With camera poses: no pair whose optical axes are further apart than this (SIFT matches
+    thin out beyond ~30 degrees of viewpoint change)."""
     sequential_window: int = 4
     """Neighbours in file-name order matched with each image."""
     retrieval_neighbours: int = 8
@@ -209,10 +220,47 @@ def read_features(database_path: Path) -> dict[str, tuple[int, np.ndarray, np.nd
     return out
 
 
-def select_pairs(names: list[str], features: dict, config: SfMConfig, seed: int = 0
-                 ) -> list[tuple[str, str]]:
-    """Image pairs to match: a window in name order plus retrieval neighbours (see module doc)."""
+def pose_pairs(names: list[str], poses: dict[str, np.ndarray], config: SfMConfig
+               ) -> list[tuple[str, str]]:
+    """Image pairs from camera poses: each image with the ``config.pose_neighbours`` images
+    whose optical axes are nearest to its own, within ``config.pose_max_angle_deg``.
+
+    Parameters
+    ----------
+    names : list of str
+        Images with a pose (in matching order).
+    poses : dict of str to (4, 4) float
+        ``T_world_camera`` per image (OpenCV: the optical axis is the third column).
+
+    Returns
+    -------
+    list of (str, str)
+        Each unordered pair once, in name order.
+    """
+    if len(names) < 2:
+        return []
+    axes = np.array([poses[n][:3, 2] for n in names], dtype=float)
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    cos = np.clip(axes @ axes.T, -1.0, 1.0)
+    np.fill_diagonal(cos, -np.inf)
+    min_cos = np.cos(np.deg2rad(config.pose_max_angle_deg))
+    pairs = set()
+    k = min(config.pose_neighbours, len(names) - 1)
+    for i in range(len(names)):
+        for j in np.argsort(-cos[i], kind="stable")[:k]:
+            if cos[i, j] >= min_cos:
+                pairs.add((min(i, int(j)), max(i, int(j))))
+    return [(names[i], names[j]) for i, j in sorted(pairs)]
+
+
+def select_pairs(names: list[str], features: dict, config: SfMConfig, seed: int = 0,
+                 poses: dict[str, np.ndarray] | None = None) -> list[tuple[str, str]]:
+    """Image pairs to match: from the poses when given (:func:`pose_pairs`), else a window in
+    name order plus retrieval neighbours (see the module docstring)."""
     n = len(names)
+    if config.matching == "auto" and poses is not None:
+        posed = [name for name in names if name in poses]
+        return pose_pairs(posed, poses, config)
     if config.matching == "exhaustive":
         return [(names[i], names[j]) for i in range(n) for j in range(i + 1, n)]
     pairs = set()
@@ -534,7 +582,7 @@ def run_sfm(image_set: ImageSet, out_dir: str | Path, intrinsics: Intrinsics | N
         timings["extract"] = time.perf_counter() - t
         t = time.perf_counter()
         feats = read_features(db_path)
-        pairs = select_pairs(image_set.names, feats, config, seed)
+        pairs = select_pairs(image_set.names, feats, config, seed, poses)
         timings["pairs"] = time.perf_counter() - t
         t = time.perf_counter()
         match(db_path, pairs, out_dir, config)

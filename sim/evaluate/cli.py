@@ -11,7 +11,7 @@ import numpy as np
 
 from sim import perturb
 from sim.evaluate import report
-from sim.evaluate.config import EvalConfig
+from sim.evaluate.config import MIN_VIEWS, POSE_SOURCES, EvalConfig
 from sim.evaluate.runner import run
 from sim.scene import Scene, SceneError, list_scenes, load_scene, physics_warnings
 
@@ -94,8 +94,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--views", type=int, default=36,
                         help="views per full capture ring (default 36)")
     parser.add_argument("--seed", type=int, default=0, help="seed of every stage (default 0)")
-    parser.add_argument("--use-poses", action="store_true",
-                        help="reconstruct with the arm's FK camera poses instead of SfM")
+    parser.add_argument("--poses", choices=POSE_SOURCES, default="fk",
+                        help="camera poses: 'fk' (default) the arm's forward kinematics, held "
+                             "fixed and checked against the images; 'images' SfM from the "
+                             "images alone (the photo route)")
     parser.add_argument("--no-manipulate", action="store_true", help="skip the manipulation")
     parser.add_argument("--validate-only", action="store_true",
                         help="only compile and check the scenes and print their ground truth")
@@ -111,13 +113,13 @@ def main(argv: list[str] | None = None) -> int:
     names = args.scenes or list_scenes()
     if args.validate_only:
         return validate(names)
-    if args.views < 4:
-        parser.error(f"--views must be at least 4, got {args.views}")
+    if args.views < MIN_VIEWS:
+        parser.error(f"--views must be at least {MIN_VIEWS}, got {args.views}")
     try:
         perturbation = perturb.from_args(args)
     except ValueError as err:
         parser.error(str(err))
-    ev = EvalConfig(views=args.views, seed=args.seed, use_poses=args.use_poses,
+    ev = EvalConfig(views=args.views, seed=args.seed, poses=args.poses,
                     manipulate=not args.no_manipulate, progress=not args.quiet,
                     perturb=perturbation)
     try:

@@ -6,6 +6,11 @@ from dataclasses import dataclass, field
 
 from sim import perturb
 
+#: Where the cameras can come from (:attr:`EvalConfig.poses`).
+POSE_SOURCES = ("fk", "images")
+#: Fewest views per full ring a run may ask for.
+MIN_VIEWS = 4
+
 #: Stage names of ``timings_s``, in pipeline order.
 STAGES = ("capture_a", "capture_b", "sfm", "dense", "matching", "segmentation_joints",
           "assign_points", "registration", "manipulation", "scoring")
@@ -19,8 +24,18 @@ class EvalConfig:
     """views per full capture ring (sim.capture n_views)"""
     seed: int = 0
     """seed of the capture, reconstruction, registration, manipulation and surface samples"""
-    use_poses: bool = False
-    """reconstruct from the arm's FK camera poses instead of SfM from the images alone"""
+    poses: str = "fk"
+    """where the cameras come from: ``"fk"`` (default) the arm's forward-kinematics camera
+    poses of ``cameras.json``, held fixed, points triangulated, the poses checked against the
+    images (a robot knows where its camera is: artrecon.sfm.check_pose_agreement refuses poses
+    that disagree); ``"images"`` SfM from the images alone (the photo route: incremental
+    mapping, registered afterwards by the camera centres)"""
+
+    def __post_init__(self) -> None:
+        if self.poses not in POSE_SOURCES:
+            raise ValueError(f"EvalConfig.poses must be one of {POSE_SOURCES}, got {self.poses!r}")
+        if self.views < MIN_VIEWS:
+            raise ValueError(f"EvalConfig.views must be at least {MIN_VIEWS}, got {self.views}")
     manipulate: bool = True
     """run the manipulation stage"""
     progress: bool = True

@@ -60,6 +60,11 @@ def _clean(obj):
     return _num(obj)
 
 
+#: How results.md names the camera source of a run (sim.evaluate.config.POSE_SOURCES).
+POSE_LABELS = {"fk": "the arm's forward-kinematics poses (held fixed, checked against the images)",
+               "images": "SfM from the images alone"}
+
+
 def jsonable_scene(result: dict) -> dict:
     """A scene's result without the in-memory parts (keys starting with ``_``), JSON-ready."""
     return _clean({k: v for k, v in result.items() if not k.startswith("_")})
@@ -198,7 +203,7 @@ def markdown(results: dict) -> str:
     out = ["# artrecon evaluation", "",
            f"{meta.get('date', '')}, `{meta.get('command', '')}`, seed {meta.get('seed')}, "
            f"{meta.get('views_per_ring')} views per ring, "
-           f"{'FK camera poses' if meta.get('use_poses') else 'SfM from the images'}.", "",
+           f"cameras: {POSE_LABELS.get(meta.get('poses'), meta.get('poses'))}.", "",
            "Versions: " + ", ".join(f"{k} {v}" for k, v in meta.get("versions", {}).items()),
            "", "| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
     out += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |"

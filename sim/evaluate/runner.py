@@ -4,7 +4,8 @@ Per scene (a bundled name or an MJCF path; default: every bundled scene):
 
 1. **capture** both configurations with the arm (:func:`sim.capture.capture`);
 2. **reconstruct** the articulated model from the two image sets (:func:`artrecon.reconstruct`),
-   in configuration A's SfM frame (or, with ``--use-poses``, from the arm's FK poses);
+   in the frame of the arm's FK camera poses (default) or, with ``--poses images``, in
+   configuration A's SfM frame;
 3. **register** it to the robot (world) frame in metres: the similarity between the SfM camera
    centres of configuration A and the FK camera positions of ``cameras.json``
    (:func:`artrecon.register.register_camera_centres`). The paper's route (hand-eye calibration
@@ -227,7 +228,7 @@ def run_meta(ev: EvalConfig, command: str) -> dict:
     """The ``meta`` record of a results.json: versions, settings, command, date, platform
     (``scene_hashes`` is filled in as scenes run)."""
     return {"versions": versions(), "seed": ev.seed, "views_per_ring": ev.views,
-            "use_poses": ev.use_poses, "manipulate": ev.manipulate,
+            "poses": ev.poses, "manipulate": ev.manipulate,
             "perturbation": ev.perturb.changed(), "command": command,
             "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "scene_hashes": {}, "gates": gates.GATES, "platform": platform.platform()}
@@ -237,7 +238,7 @@ def run(names: list[str], ev: EvalConfig, out_dir: Path, argv: list[str] | None 
     """Evaluate scenes and write the report folder. Returns the results dict (results.json)."""
     from tqdm import tqdm
 
-    from sim import report
+    from sim.evaluate import report
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

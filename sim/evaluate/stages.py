@@ -122,12 +122,12 @@ def reconstruct_stage(set_a: Path, set_b: Path, keys: tuple[str, str], ev: EvalC
     from artrecon.reconstruct import ReconstructConfig, _jsonable, reconstruct, with_settings
 
     config = with_settings(ReconstructConfig(), settings or {})
-    inputs = {"captures": list(keys), "use_poses": ev.use_poses, "seed": ev.seed,
+    inputs = {"captures": list(keys), "poses": ev.poses, "seed": ev.seed,
               "config": _jsonable(asdict(config)), "version": artrecon.__version__,
               "code": _reconstruct_sources()}
 
     def build(folder: Path) -> dict:
-        model = reconstruct(set_a, set_b, poses=True if ev.use_poses else None,
+        model = reconstruct(set_a, set_b, poses=True if ev.poses == "fk" else None,
                             out_dir=folder / "model", seed=ev.seed, config=config,
                             progress=ev.progress)
         return {"timings": model.metadata.get("timings", {}),
