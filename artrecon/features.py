@@ -76,8 +76,8 @@ class CrossMatches:
                             self.point3D_ids_b[mask], self.votes[mask], self.colours[mask])
 
 
-def _tracked_features(sfm, allowed: set | None = None
-                      ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def tracked_features(sfm, allowed: set | None = None
+                     ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Per registered image: (point3D ids (k,), unit float descriptors (k, 128)) of the keypoints
     that belong to a 3D point (in ``allowed``, if given)."""
     rec = sfm.reconstruction
@@ -153,8 +153,8 @@ def _similar_images(fa: dict, fb: dict, k: int, sample: int, seed: int) -> dict[
 
 
 def match_configurations(sfm_a, sfm_b, config: MatchConfig = MatchConfig(), seed: int = 0,
-                         allowed_a: set | None = None, allowed_b: set | None = None
-                         ) -> CrossMatches:
+                         allowed_a: set | None = None, allowed_b: set | None = None,
+                         features: tuple[dict, dict] | None = None) -> CrossMatches:
     """3D-3D matches between two SfM models of the object in configurations A and B.
 
     Parameters
@@ -164,6 +164,9 @@ def match_configurations(sfm_a, sfm_b, config: MatchConfig = MatchConfig(), seed
     seed : int
     allowed_a, allowed_b : set of int, optional
         Only these 3D point ids take part (e.g. the points on the object, not the background).
+    features : (dict, dict), optional
+        :func:`tracked_features` of the two models with these ``allowed`` ids, when the caller
+        has them already.
 
     Returns
     -------
@@ -174,7 +177,8 @@ def match_configurations(sfm_a, sfm_b, config: MatchConfig = MatchConfig(), seed
     ReconstructionError
         Fewer than ``config.min_matches`` pairs found.
     """
-    fa, fb = _tracked_features(sfm_a, allowed_a), _tracked_features(sfm_b, allowed_b)
+    fa, fb = features if features is not None else (tracked_features(sfm_a, allowed_a),
+                                                     tracked_features(sfm_b, allowed_b))
     if not fa or not fb:
         raise ReconstructionError("cross matching: a model has no image with triangulated "
                                   "keypoints")
@@ -217,3 +221,120 @@ def match_configurations(sfm_a, sfm_b, config: MatchConfig = MatchConfig(), seed
     log.info("cross matching: %d image pairs, %d 3D-3D matches (%d with >= 2 votes)",
              sum(len(x) for x in partners.values()), len(keys), int((v >= 2).sum()))
     return CrossMatches(pts_a, pts_b, keys[:, 0], keys[:, 1], v, cols)
+
+
+@dataclass
+class PointDescriptors:
+    """One SIFT descriptor per 3D point: the mean of its track's unit descriptors, normalised.
+
+    Attributes
+    ----------
+    ids : (n,) int
+        3D point ids of the SfM model.
+    xyz : (n, 3) float
+        Their positions.
+    desc : (n, 128) float32
+        Unit descriptors.
+    """
+
+    ids: np.ndarray
+    xyz: np.ndarray
+    desc: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+def point_descriptors(sfm, features: dict) -> PointDescriptors:
+    """:class:`PointDescriptors` of the 3D points in ``features`` (:func:`tracked_features`)."""
+    if not features:
+        return PointDescriptors(np.zeros(0, np.int64), np.zeros((0, 3)),
+                                np.zeros((0, 128), np.float32))
+    pids = np.concatenate([f[0] for f in features.values()])
+    desc = np.concatenate([f[1] for f in features.values()])
+    ids, inv = np.unique(pids, return_inverse=True)
+    sums = np.zeros((len(ids), desc.shape[1]), np.float64)
+    np.add.at(sums, inv, desc)
+    sums /= np.linalg.norm(sums, axis=1, keepdims=True) + 1e-12
+    rec = sfm.reconstruction
+    xyz = np.array([rec.points3D[int(i)].xyz for i in ids])
+    return PointDescriptors(ids.astype(np.int64), xyz, sums.astype(np.float32))
+
+
+@dataclass(frozen=True)
+class GuidedConfig:
+    """Settings of the guided matching (:func:`guided_matches`)."""
+
+    enabled: bool = True
+    """Add the guided matches to the segmented ones before the links' motions are final."""
+    min_similarity: float = 0.85
+    """Smallest cosine similarity of the two points' mean SIFT descriptors."""
+    margin: float = 0.03
+    """An A point is left out when a second candidate (another B point, or another link's
+    prediction) is within this similarity of its best one: ambiguous."""
+    rounds: int = 2
+    """Rounds of guided matching and refitting (each with the refitted motions)."""
+
+
+def guided_matches(transforms, radii, cand_a: PointDescriptors, cand_b: PointDescriptors,
+                   config: GuidedConfig = GuidedConfig()) -> tuple[np.ndarray, np.ndarray,
+                                                                   np.ndarray]:
+    """More 3D-3D matches, guided by each link's motion: SIFT points of A that the first
+    matching left out (no mutual ratio-test match in any image pair) but whose position,
+    moved by a link's motion, falls within that link's inlier distance of a B point with a
+    similar descriptor.
+
+    The first matching keeps only distinctive descriptors (Lowe's ratio over a whole image);
+    once a link's motion is known, a point needs only be distinctive among the few B points
+    near where that motion puts it. A point that two links' motions map onto plausible
+    partners (near the joint, where the links move alike) or that has two similar candidates
+    is left out.
+
+    Parameters
+    ----------
+    transforms : list of Similarity
+        Each link's motion A -> B.
+    radii : list of float
+        Each link's inlier distance (B units).
+    cand_a, cand_b : PointDescriptors
+        The A and B points that may be matched (not matched yet).
+    config : GuidedConfig
+
+    Returns
+    -------
+    idx_a, idx_b : (m,) int
+        Indices into ``cand_a`` and ``cand_b`` of the new matches (one-to-one).
+    link : (m,) int
+        The link whose motion found each.
+    """
+    empty = (np.zeros(0, int), np.zeros(0, int), np.zeros(0, int))
+    if len(cand_a) == 0 or len(cand_b) == 0 or not transforms:
+        return empty
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(cand_b.xyz)
+    n = len(cand_a)
+    best_sim = np.full(n, -np.inf)
+    second = np.full(n, -np.inf)
+    best_b = np.full(n, -1)
+    best_link = np.full(n, -1)
+    for k, (T, r) in enumerate(zip(transforms, radii, strict=True)):
+        moved = T.apply(cand_a.xyz)
+        near = tree.query_ball_point(moved, r)
+        for i, js in enumerate(near):
+            for j in js:
+                sim = float(cand_a.desc[i] @ cand_b.desc[j])
+                # candidates are (link, B point) pairs: the same B point reached by two links'
+                # motions competes with itself, so a point near the joint stays out
+                if sim > best_sim[i]:
+                    second[i] = best_sim[i]
+                    best_sim[i], best_b[i], best_link[i] = sim, j, k
+                elif sim > second[i]:
+                    second[i] = sim
+    ok = (best_sim >= config.min_similarity) & (best_sim - second >= config.margin)
+    ia = np.flatnonzero(ok)
+    # one-to-one: a B point claimed twice goes to the more similar A point
+    order = ia[np.argsort(-best_sim[ia], kind="stable")]
+    _, first = np.unique(best_b[order], return_index=True)
+    ia = np.sort(order[first])
+    return ia, best_b[ia], best_link[ia]

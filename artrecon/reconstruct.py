@@ -32,10 +32,11 @@ Output folder (written whole or not at all: built in a temporary sibling folder,
 from __future__ import annotations
 
 import logging
+import multiprocessing
 import shutil
-import sys
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
@@ -44,14 +45,23 @@ import numpy as np
 from artrecon import __version__
 from artrecon.assign import AssignConfig, assign_dense_to_links, views_from_sfm
 from artrecon.confidence import ConfidenceConfig, assess_joints, explain_segmentation_failure
-from artrecon.dense import DenseConfig, RegionConfig, dense_points, object_region
+from artrecon.configuration import Configuration, load_configuration, reconstruct_configuration
+from artrecon.dense import DenseConfig, RegionConfig
 from artrecon.errors import (
     DegenerateError,
     InputError,
     ReconstructionError,
     WeakEvidenceError,
 )
-from artrecon.features import MatchConfig, match_configurations
+from artrecon.features import (
+    GuidedConfig,
+    MatchConfig,
+    PointDescriptors,
+    guided_matches,
+    match_configurations,
+    point_descriptors,
+    tracked_features,
+)
 from artrecon.io import (
     Intrinsics,
     check_distinct,
@@ -64,14 +74,14 @@ from artrecon.io import (
 )
 from artrecon.joints import JointConfig, KinematicTree, build_kinematic_tree, estimate_joints
 from artrecon.model import ArticulatedModel, Link
-from artrecon.procrustes import rigid_transform
+from artrecon.procrustes import rigid_transform, shared_scale_transforms
 from artrecon.segment import (
     Segmentation,
     SegmentationConfig,
     min_link_size,
     segment_links,
 )
-from artrecon.sfm import SfMConfig, SfMResult, layout_error, run_sfm
+from artrecon.sfm import SfMConfig
 
 log = logging.getLogger(__name__)
 
@@ -86,9 +96,6 @@ MERGE_MAX_ROTATION = np.deg2rad(1.0)
 #: (artrecon.confidence refuses such a joint with the same ratio, MIN_MOTION_SNR; seen: a
 #: barrett_hand run split off a "link" moving 1.5 x the noise, 0.18 deg, beside the two fingers).
 MERGE_MIN_MOTION_SNR = 3.0
-#: Background 3D points (per configuration) that take part in the matching, only to tell which
-#: link stays put with the room (the root). A sample keeps the matching cost down.
-BACKGROUND_SAMPLE = 3000
 #: Fewest background matches needed to pick the root from them (else: the largest link).
 MIN_BACKGROUND_MATCHES = 20
 #: The base's median background residual must be below this fraction of every other link's.
@@ -116,6 +123,7 @@ class ReconstructConfig:
     joints: JointConfig = field(default_factory=JointConfig)
     assign: AssignConfig = field(default_factory=AssignConfig)
     confidence: ConfidenceConfig = field(default_factory=ConfidenceConfig)
+    guided: GuidedConfig = field(default_factory=GuidedConfig)
 
 
 def with_settings(config: ReconstructConfig, settings: dict[str, float | int | bool]
@@ -156,12 +164,6 @@ def with_settings(config: ReconstructConfig, settings: dict[str, float | int | b
                                   for stage, kw in changed.items()})
     except ValueError as exc:  # a stage's own check (e.g. DenseConfig.downsample >= 1)
         raise InputError(f"settings {settings}: {exc}") from exc
-
-
-def _cameras(sfm: SfMResult) -> tuple[np.ndarray, np.ndarray]:
-    T = sfm.T_world_camera()
-    names = sorted(T)
-    return np.array([T[n][:3, 3] for n in names]), np.array([T[n][:3, 2] for n in names])
 
 
 def merge_equivalent_links(points_a: np.ndarray, points_b: np.ndarray,
@@ -329,8 +331,6 @@ def anchor_to_background(points_a: np.ndarray, points_b: np.ndarray, seg: Segmen
     anchor : (background_a, background_b) or None
         The background matches that joined the base (for the confidence's bootstrap).
     """
-    from artrecon.procrustes import shared_scale_transforms
-
     labels = np.asarray(seg.labels)
     groups = [(points_a[labels == k], points_b[labels == k]) for k in range(seg.n_links)]
     own_a, own_b = groups[root]
@@ -399,6 +399,53 @@ def anchor_base(points_a: np.ndarray, points_b: np.ndarray, seg: Segmentation,
     return seg, root, None if anchor is None else {root: anchor}
 
 
+def add_guided_matches(points_a: np.ndarray, points_b: np.ndarray, seg: Segmentation,
+                       candidates: tuple[PointDescriptors, PointDescriptors],
+                       anchors: dict | None, config: GuidedConfig | None = None
+                       ) -> tuple[np.ndarray, np.ndarray, Segmentation, np.ndarray]:
+    """The segmented matches with the guided ones (:func:`artrecon.features.guided_matches`)
+    added to their links, and every link's motion refitted to them (one common scale; the base
+    with the background matches it was anchored to).
+
+    Each round matches the candidates afresh with the motions of the previous one, so the
+    guided set is never counted twice.
+
+    Returns
+    -------
+    points_a, points_b : (n + m, 3) float
+        The matches, the guided ones appended.
+    seg : Segmentation
+        Labels for all of them (the guided ones carry their link), refitted transforms, RMS.
+    ids : (m, 2) int
+        The SfM point ids (A, B) of the appended matches.
+    """
+    config = config or GuidedConfig()
+    cand_a, cand_b = candidates
+    base_a, base_b, base_labels = points_a, points_b, np.asarray(seg.labels)
+    ids = np.zeros((0, 2), np.int64)
+    for _ in range(config.rounds):
+        ia, ib, link = guided_matches(seg.transforms, seg.thresholds or [0.0] * seg.n_links,
+                                      cand_a, cand_b, config)
+        pa = np.vstack([base_a, cand_a.xyz[ia]])
+        pb = np.vstack([base_b, cand_b.xyz[ib]])
+        labels = np.concatenate([base_labels, link])
+        groups = []
+        for k in range(seg.n_links):
+            ga, gb = pa[labels == k], pb[labels == k]
+            if anchors and k in anchors:
+                ga, gb = np.vstack([ga, anchors[k][0]]), np.vstack([gb, anchors[k][1]])
+            groups.append((ga, gb))
+        transforms = shared_scale_transforms(groups)
+        rms = [_rms(T, pa[labels == k], pb[labels == k]) for k, T in enumerate(transforms)]
+        seg = replace(seg, labels=labels, transforms=transforms, scale=float(transforms[0].scale),
+                      rms=rms)
+        points_a, points_b = pa, pb
+        ids = np.c_[cand_a.ids[ia], cand_b.ids[ib]]
+    log.info("guided matching: %d matches added (%s per link)", len(ids),
+             np.bincount(seg.labels[len(base_labels):], minlength=seg.n_links).tolist())
+    return points_a, points_b, seg, ids
+
+
 @dataclass
 class Articulation:
     """What :func:`articulate` finds in the matches: links, tree, joints and their evidence."""
@@ -421,11 +468,18 @@ class Articulation:
     """:func:`artrecon.confidence.assess_joints`' summary (each joint's record is also in
     ``Joint.confidence``)."""
     timings: dict[str, float]
+    points_a: np.ndarray | None = None
+    """The matches the links were fitted to (the guided ones appended), A's frame ..."""
+    points_b: np.ndarray | None = None
+    """... and B's; ``segmentation.labels`` labels them."""
+    guided_ids: np.ndarray | None = None
+    """(m, 2) SfM point ids (A, B) of the matches the guided matching appended."""
 
 
 def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndarray,
                background_b: np.ndarray, dense_a, dense_b, config: ReconstructConfig, seed: int,
-               *, views_a=None, views_b=None, occluders_a=None, occluders_b=None
+               *, views_a=None, views_b=None, occluders_a=None, occluders_b=None,
+               candidates: tuple[PointDescriptors, PointDescriptors] | None = None
                ) -> Articulation:
     """Every step after matching: segment the matches into links (method step 2), anchor the
     base to the background, label the dense points with links, build the kinematic tree on the
@@ -444,6 +498,9 @@ def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndar
     views_a, views_b, occluders_a, occluders_b :
         The image cues of the dense labelling (artrecon.assign); without them the labelling is
         geometric only.
+    candidates : (PointDescriptors, PointDescriptors), optional
+        The object's SfM points of A and B that the matching left out, for the guided matching
+        (:func:`add_guided_matches`, ``config.guided``); without them only the matches count.
 
     Raises
     ------
@@ -472,6 +529,10 @@ def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndar
                                            seed) from exc
     # The base moves with the room: its motion is fitted to the background matches too.
     seg, root, anchors = anchor_base(points_a, points_b, seg, background_a, background_b)
+    guided = np.zeros((0, 2), np.int64)
+    if candidates is not None and config.guided.enabled:
+        points_a, points_b, seg, guided = add_guided_matches(points_a, points_b, seg, candidates,
+                                                             anchors, config.guided)
     timings["segment"] = time.perf_counter() - t
     t = time.perf_counter()
     lab_a, lab_b = assign_dense_to_links(
@@ -494,7 +555,7 @@ def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndar
                                seed, anchors)
     timings["joints"] = time.perf_counter() - t
     return Articulation(seg, root, anchors, lab_a, lab_b, links, tree, joints, confidence,
-                        timings)
+                        timings, points_a, points_b, guided)
 
 
 def reroot(tree: KinematicTree, root: int) -> KinematicTree:
@@ -544,7 +605,8 @@ def _resolve_inputs(images, intrinsics, poses_arg, which: str):
 
 def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None, seed: int = 0,
                 config: ReconstructConfig = ReconstructConfig(), overwrite: bool = False,
-                progress: bool = True) -> ArticulatedModel:
+                progress: bool = True, jobs: int = 2,
+                configurations: tuple | None = None) -> ArticulatedModel:
     """Articulated model of an object from two image sets, one per configuration.
 
     Parameters
@@ -566,6 +628,13 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
         Replace an existing ``out_dir``.
     progress : bool
         tqdm bars on stderr.
+    jobs : int
+        Processes for the per-configuration stage (:mod:`artrecon.configuration`): 2 runs
+        configuration B beside A; 1 runs them one after the other (same result).
+    configurations : (folder_a, folder_b), optional
+        Folders of finished per-configuration stages of these image sets (e.g. written by the
+        harness while it captured): reused when their records name the same inputs and
+        settings, recomputed otherwise.
 
     Returns
     -------
@@ -602,7 +671,7 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
         work = Path(tempfile.mkdtemp(prefix="artrecon-"))
     try:
         model = _run(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work, seed, config,
-                     progress)
+                     progress, jobs, configurations)
         model.metadata["timings"]["total"] = time.perf_counter() - t_all
         if out_dir is not None:
             model.save(work / "model.json")
@@ -614,70 +683,94 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
     return model
 
 
+def prepare_configuration(images, out_dir, *, intrinsics=None, poses=None, seed: int = 0,
+                          config: ReconstructConfig = ReconstructConfig(), which: str = "",
+                          progress: bool = False) -> Path:
+    """The per-configuration stage of one image set (:mod:`artrecon.configuration`), written
+    to ``out_dir`` for a later :func:`reconstruct` (``configurations=``) to start from.
+
+    ``images``, ``intrinsics`` and ``poses`` are one configuration's, as :func:`reconstruct`
+    takes them. Returns ``out_dir``.
+    """
+    iset, intr, known = _resolve_inputs(images, intrinsics, poses, which or "?")
+    _configuration(iset, Path(out_dir), intr, known, config, seed, which, progress)
+    return Path(out_dir)
+
+
+def _configuration(iset, folder, intr, poses, config: ReconstructConfig, seed: int, which: str,
+                   progress: bool) -> Configuration:
+    return reconstruct_configuration(iset, folder, intr, poses, sfm_config=config.sfm,
+                                     dense_config=config.dense, region_config=config.region,
+                                     seed=seed, which=which, progress=progress)
+
+
+def _configuration_in_process(*args) -> None:
+    """:func:`_configuration` in a worker process: the folder is the result (a pycolmap
+    Reconstruction does not cross processes)."""
+    _configuration(*args)
+
+
 def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, poses_a, poses_b,
-         work: Path, seed: int, config: ReconstructConfig, progress: bool) -> ArticulatedModel:
+         work: Path, seed: int, config: ReconstructConfig, progress: bool, jobs: int = 2,
+         configurations: tuple | None = None) -> ArticulatedModel:
     timings: dict[str, float] = {}
-    console = sys.stderr if progress else None
-    sfms, denses, regions, backgrounds, occluders = {}, {}, {}, {}, {}
-    for key, iset, intr, poses in (("a", set_a, intr_a, poses_a), ("b", set_b, intr_b, poses_b)):
-        t = time.perf_counter()
-        sfm = run_sfm(iset, work / key, intr, poses, config.sfm, seed, progress)
-        if poses is None and iset.cameras_file is not None:
-            reference = load_cameras_json(iset.cameras_file)[1]
-            if len(reference) >= 3:
-                err = layout_error(sfm, reference)
-                log.info("configuration %s: SfM cameras vs cameras.json poses: %.2f%% of their "
-                         "spread", key.upper(), 100 * err)
-                if err > config.sfm.max_layout_error:
-                    raise ReconstructionError(
-                        f"configuration {key.upper()}: the SfM cameras disagree with the poses in "
-                        f"{iset.cameras_file} by {100 * err:.1f}% of their spread (a folded or "
-                        "broken camera ring); use the poses (--use-poses) or more overlapping "
-                        "views")
-        timings[f"sfm_{key}"] = time.perf_counter() - t
-        t = time.perf_counter()
-        dense = dense_points(sfm, config.dense, console)
-        centres, axes = _cameras(sfm)
-        occluders[key] = dense.points  # background too: the table and walls hide things
-        dense = dense.subset(object_region(dense.points, centres, axes, config.region, seed))
-        if len(dense) < 10:
-            raise ReconstructionError(f"configuration {key.upper()}: no dense points left on the "
-                                      "object after removing the background; the cameras should "
-                                      "circle the object and look at it")
-        timings[f"dense_{key}"] = time.perf_counter() - t
-        rec = sfm.reconstruction
-        ids = np.array(list(rec.point3D_ids()), dtype=np.int64)
-        xyz = np.array([rec.points3D[int(i)].xyz for i in ids])
-        on_object = object_region(xyz, centres, axes, config.region, seed)
-        regions[key] = set(ids[on_object].tolist())
-        bg = ids[~on_object]
-        if len(bg) > BACKGROUND_SAMPLE:
-            bg = np.random.default_rng(seed).choice(bg, BACKGROUND_SAMPLE, replace=False)
-        backgrounds[key] = set(bg.tolist())
-        write_ply(work / key / "dense.ply", dense.points, dense.normals, dense.colors)
-        sfms[key], denses[key] = sfm, dense
+    folders = {"a": work / "a", "b": work / "b"}
+    if configurations is not None:  # finished per-configuration folders: start from copies
+        for key, src in zip(("a", "b"), configurations, strict=True):
+            if Path(src).is_dir():
+                shutil.copytree(src, folders[key], symlinks=True)
+    args = {"a": (set_a, folders["a"], intr_a, poses_a, config, seed, "A"),
+            "b": (set_b, folders["b"], intr_b, poses_b, config, seed, "B")}
+    confs: dict[str, Configuration] = {}
+    if jobs > 1:
+        # B in a second (spawned) process while this one does A: the two are independent
+        with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+            future = pool.submit(_configuration_in_process, *args["b"], False)
+            confs["a"] = _configuration(*args["a"], progress)
+            future.result()
+        confs["b"] = load_configuration(folders["b"])
+    else:
+        for key in ("a", "b"):
+            confs[key] = _configuration(*args[key], progress)
+    for key, conf in confs.items():
+        timings[f"sfm_{key}"] = conf.record["timings"]["sfm"]
+        timings[f"dense_{key}"] = conf.record["timings"]["dense"]
+    sfms = {k: c.sfm for k, c in confs.items()}
+    denses = {k: c.dense for k, c in confs.items()}
+    occluders = {k: c.occluders for k, c in confs.items()}
+    regions = {k: c.object_ids for k, c in confs.items()}
+    backgrounds = {k: c.background_ids for k, c in confs.items()}
     t = time.perf_counter()
+    feats = {k: tracked_features(sfms[k], regions[k] | backgrounds[k]) for k in ("a", "b")}
     matches = match_configurations(sfms["a"], sfms["b"], config.match, seed,
-                                   regions["a"] | backgrounds["a"],
-                                   regions["b"] | backgrounds["b"])
+                                   features=(feats["a"], feats["b"]))
     in_a = np.isin(matches.point3D_ids_a, list(regions["a"]))
     in_b = np.isin(matches.point3D_ids_b, list(regions["b"]))
     background = matches.subset(~in_a & ~in_b)
     matches = matches.subset(in_a & in_b)
+    # the object's points the matching left out, for the guided matching
+    candidates = []
+    for key, matched in (("a", matches.point3D_ids_a), ("b", matches.point3D_ids_b)):
+        desc = point_descriptors(sfms[key], feats[key])
+        keep = np.isin(desc.ids, list(regions[key])) & ~np.isin(desc.ids, matched)
+        candidates.append(PointDescriptors(desc.ids[keep], desc.xyz[keep], desc.desc[keep]))
     timings["match"] = time.perf_counter() - t
     try:
         art = articulate(matches.points_a, matches.points_b, background.points_a,
                          background.points_b, denses["a"], denses["b"], config, seed,
                          views_a=views_from_sfm(sfms["a"]), views_b=views_from_sfm(sfms["b"]),
-                         occluders_a=occluders["a"], occluders_b=occluders["b"])
+                         occluders_a=occluders["a"], occluders_b=occluders["b"],
+                         candidates=tuple(candidates))
     except (DegenerateError, WeakEvidenceError) as exc:
         # slightly wrong given poses show up as matches that do not move together
         raise blame_poses(exc, sfms, config.sfm) from exc
     timings.update(art.timings)
     seg, links, root = art.segmentation, art.links, art.root
-    np.savez(work / "matches.npz", points_a=matches.points_a, points_b=matches.points_b,
-             point3D_ids_a=matches.point3D_ids_a, point3D_ids_b=matches.point3D_ids_b,
-             votes=matches.votes, labels=seg.labels, background_a=background.points_a,
+    np.savez(work / "matches.npz", points_a=art.points_a, points_b=art.points_b,
+             point3D_ids_a=np.r_[matches.point3D_ids_a, art.guided_ids[:, 0]],
+             point3D_ids_b=np.r_[matches.point3D_ids_b, art.guided_ids[:, 1]],
+             votes=np.r_[matches.votes, np.zeros(len(art.guided_ids), np.int64)],
+             labels=seg.labels, background_a=background.points_a,
              background_b=background.points_b)
     (work / "links").mkdir(exist_ok=True)
     for k, lk in enumerate(links):
@@ -700,7 +793,8 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
             "num_images": {k: s.num_images for k, s in sfms.items()},
             "sparse_points": {k: s.reconstruction.num_points3D() for k, s in sfms.items()},
             "dense_points": {k: len(d) for k, d in denses.items()},
-            "matches": len(matches), "match_outliers": int((seg.labels < 0).sum()),
+            "matches": len(matches), "guided_matches": len(art.guided_ids),
+            "match_outliers": int((seg.labels < 0).sum()),
             "background_matches": len(background),
             "root_from": "background" if root is not None else "largest link",
             "root_background_matches": len(art.anchors[root][0]) if art.anchors else 0,
