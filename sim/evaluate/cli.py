@@ -79,49 +79,59 @@ def format_table(rows: list[list[str]]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(
+def parser() -> argparse.ArgumentParser:
+    """The command line; its defaults are :class:`EvalConfig`'s (one default each)."""
+    default = EvalConfig()
+    p = argparse.ArgumentParser(
         prog="python -m sim.evaluate",
         description="Capture, reconstruct, register and manipulate each scene, score everything "
                     "against ground truth and write a report (results.json, results.md, PNGs).")
-    parser.add_argument("scenes", nargs="*",
-                        help=f"bundled scene names or MJCF paths (default: all of "
-                             f"{list_scenes()})")
-    parser.add_argument("--out", type=Path, default=Path("runs/eval"),
-                        help="report folder; stage results are cached in OUT/cache "
-                             "(default runs/eval)")
-    parser.add_argument("--views", type=int, default=36,
-                        help="views per full capture ring (default 36)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of every stage (default 0)")
-    parser.add_argument("--poses", choices=POSE_SOURCES, default="fk",
-                        help="camera poses: 'fk' (default) the arm's forward kinematics, held "
-                             "fixed and checked against the images; 'images' SfM from the "
-                             "images alone (the photo route)")
-    parser.add_argument("--no-manipulate", action="store_true", help="skip the manipulation")
-    parser.add_argument("--validate-only", action="store_true",
-                        help="only compile and check the scenes and print their ground truth")
-    parser.add_argument("--report-only", action="store_true",
-                        help="exploratory run: report the verdict but exit 0 even when a scene "
-                             "fails a gate")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    perturb.add_arguments(parser)
-    args = parser.parse_args(argv)
+    p.add_argument("scenes", nargs="*",
+                   help=f"bundled scene names or MJCF paths (default: all of {list_scenes()})")
+    p.add_argument("--out", type=Path, default=Path("runs/eval"),
+                   help="report folder; stage results are cached in OUT/cache (default runs/eval)")
+    p.add_argument("--views", type=int, default=default.views,
+                   help=f"views per full capture ring (default {default.views})")
+    p.add_argument("--seed", type=int, default=default.seed,
+                   help=f"seed of every stage (default {default.seed})")
+    p.add_argument("--poses", choices=POSE_SOURCES, default=default.poses,
+                   help="camera poses: 'fk' the arm's forward kinematics, held fixed and checked "
+                        "against the images; 'images' SfM from the images alone (the photo "
+                        f"route); default {default.poses!r}")
+    p.add_argument("--no-manipulate", action="store_true", help="skip the manipulation")
+    p.add_argument("--validate-only", action="store_true",
+                   help="only compile and check the scenes and print their ground truth")
+    p.add_argument("--report-only", action="store_true",
+                   help="exploratory run: report the verdict but exit 0 even when a scene fails "
+                        "a gate")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    perturb.add_arguments(p)
+    return p
+
+
+def config_from_args(args: argparse.Namespace) -> EvalConfig:
+    """The run's :class:`EvalConfig` from parsed arguments (ValueError: a bad value)."""
+    return EvalConfig(views=args.views, seed=args.seed, poses=args.poses,
+                      manipulate=not args.no_manipulate, progress=not args.quiet,
+                      perturb=perturb.from_args(args))
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser_ = parser()
+    args = parser_.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     names = args.scenes or list_scenes()
     if args.validate_only:
         return validate(names)
     if args.views < MIN_VIEWS:
-        parser.error(f"--views must be at least {MIN_VIEWS}, got {args.views}")
+        parser_.error(f"--views must be at least {MIN_VIEWS}, got {args.views}")
     try:
-        perturbation = perturb.from_args(args)
+        ev = config_from_args(args)
     except ValueError as err:
-        parser.error(str(err))
-    ev = EvalConfig(views=args.views, seed=args.seed, poses=args.poses,
-                    manipulate=not args.no_manipulate, progress=not args.quiet,
-                    perturb=perturbation)
+        parser_.error(str(err))
     try:
         results = run(names, ev, args.out, argv)
     except KeyboardInterrupt:

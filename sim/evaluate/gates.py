@@ -25,6 +25,23 @@ GATES = {
 }
 
 
+#: Every gate a scene's verdict checks, by name (a check's ``gate``; ``state_error`` stands for
+#: ``state_error_deg`` and ``state_error_mm``, ``manipulation`` for a motion that did not happen
+#: and ``manipulation_relative_error``): the tests gate each of them on every bundled scene.
+GATE_NAMES = ("error", "joint_found", "type", "axis_angle_deg", "axis_position_mm",
+              "state_error", "tree", "invented_joints", "segmentation_accuracy",
+              "off_object_share", "manipulation")
+
+
+def family(gate: str) -> str:
+    """The :data:`GATE_NAMES` entry a check's gate belongs to."""
+    if gate.startswith("state_error"):
+        return "state_error"
+    if gate.startswith("manipulation"):
+        return "manipulation"
+    return gate
+
+
 @dataclass(frozen=True)
 class GateCheck:
     """One gate applied to one figure of a scene."""

@@ -70,7 +70,7 @@ from sim.evaluate import gates
 from sim.evaluate.config import EvalConfig
 from sim.evaluate.scoring import score_scene
 from sim.evaluate.stages import (
-    capture_stages,
+    configuration_chains,
     manipulation_stage,
     reconstruct_stage,
     register_configuration,
@@ -103,29 +103,31 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
         result["scene_file"] = str(scene.path)
         scene_hash = cache.scene_hash(scene.path)
         result["scene_hash"] = scene_hash
-        sets, keys = {}, []
+        sets, keys, confs = {}, [], {}
         stage = "capture_a"
-        captures = capture_stages(scene, ev, cache_root, scene_hash)
+        chains = configuration_chains(scene, ev, cache_root, scene_hash,
+                                      dict(scene.reconstruct_settings))
         for c in ("a", "b"):
             stage = f"capture_{c}"
-            if isinstance(captures[c], BaseException):
-                raise captures[c]
-            folder, meta, hit = captures[c]
-            folder, key, pmeta = perturb.set_stage(folder, meta["key"], scene, ev.perturb,
-                                                   ev.seed, c, cache_root)
-            sets[c] = folder
-            keys.append(key)
-            if pmeta:
-                result[f"perturb_{c}"] = pmeta
+            if isinstance(chains[c], BaseException):
+                stage = getattr(chains[c], "stage", stage)
+                raise chains[c]
+            chain = chains[c]
+            meta = chain["capture"]
+            sets[c], confs[c] = chain["set"], chain["configuration"]
+            keys.append(chain["key"])
+            if chain["perturb"]:
+                result[f"perturb_{c}"] = chain["perturb"]
             timings[stage] = meta["build_s"]
-            result["cached_stages"] += [stage] if hit else []
+            result["cached_stages"] += chain["hits"]
             result[f"capture_{c}"] = {k: meta[k] for k in
                                       ("n_planned", "n_captured", "max_fk_position_error_mm",
                                        "max_fk_rotation_error_deg") if k in meta}
         result["_sets"] = {c: str(p) for c, p in sets.items()}
         stage = "reconstruct"
         model_dir, meta, hit = reconstruct_stage(sets["a"], sets["b"], tuple(keys), ev,
-                                                 cache_root, dict(scene.reconstruct_settings))
+                                                 cache_root, dict(scene.reconstruct_settings),
+                                                 (confs["a"], confs["b"]))
         rt = meta.get("timings", {})
         timings["sfm"] = rt.get("sfm_a", 0.0) + rt.get("sfm_b", 0.0)
         timings["dense"] = rt.get("dense_a", 0.0) + rt.get("dense_b", 0.0)

@@ -80,30 +80,96 @@ def capture_stage(scene: Scene, configuration: str, ev: EvalConfig, cache_root: 
     return folder / "set", meta, hit
 
 
-def capture_stages(scene: Scene, ev: EvalConfig, cache_root: Path,
-                   scene_hash: str) -> dict[str, tuple | BaseException]:
-    """:func:`capture_stage` of configurations A and B, each its result or its exception.
+def _configuration_inputs(capture_key: str, configuration: str, ev: EvalConfig,
+                          settings: dict | None) -> dict:
+    import artrecon
+    from artrecon.reconstruct import ReconstructConfig, _jsonable, with_settings
 
-    When both must be built and ``ev.parallel_capture`` is set, B is captured in a second process
-    (spawned: its own MuJoCo and OpenGL context, no progress bar) while this process captures A.
+    config = with_settings(ReconstructConfig(), settings or {})
+    return {"capture": capture_key, "config": configuration, "poses": ev.poses,
+            "seed": ev.seed, "settings": _jsonable({k: asdict(getattr(config, k))
+                                                    for k in ("sfm", "dense", "region")}),
+            "version": artrecon.__version__, "code": _reconstruct_sources()}
+
+
+def configuration_stage(set_dir: Path, capture_key: str, configuration: str, ev: EvalConfig,
+                        cache_root: Path, settings: dict | None = None
+                        ) -> tuple[Path, dict, bool]:
+    """artrecon's per-configuration stage (SfM or FK triangulation, dense points, the object
+    region) of one captured set (cached). Returns its folder, stage metadata, hit."""
+    from artrecon.reconstruct import ReconstructConfig, prepare_configuration, with_settings
+
+    config = with_settings(ReconstructConfig(), settings or {})
+
+    def build(folder: Path) -> dict:
+        prepare_configuration(set_dir, folder / "configuration", seed=ev.seed, config=config,
+                              poses=True if ev.poses == "fk" else None,
+                              which=configuration.upper(), progress=ev.progress)
+        return {}
+
+    inputs = _configuration_inputs(capture_key, configuration, ev, settings)
+    folder, meta, hit = cache.cached_stage(cache_root, f"configuration_{configuration}", inputs,
+                                           build)
+    return folder / "configuration", meta, hit
+
+
+def configuration_chain(scene: Scene, configuration: str, ev: EvalConfig, cache_root: Path,
+                        scene_hash: str, settings: dict | None = None) -> dict:
+    """Everything one configuration needs before the two meet: the capture, its perturbation
+    (robustness runs) and artrecon's per-configuration stage, each cached.
+
+    Returns
+    -------
+    dict
+        ``set`` (the image set artrecon reads), ``capture`` (capture metadata), ``key`` (the
+        set's cache key), ``perturb`` (perturbation summary), ``configuration`` (the stage's
+        folder), ``hits`` (names of the stages taken from the cache), ``build_s`` (seconds
+        per stage as built).
     """
-    todo = [c for c in ("a", "b") if not cache.is_cached(
-        cache_root, f"capture_{c}", _capture_inputs(scene, c, ev, scene_hash))]
-    out: dict[str, tuple | BaseException] = {}
+    stage = f"capture_{configuration}"
+    try:
+        folder, meta, hit = capture_stage(scene, configuration, ev, cache_root, scene_hash)
+        set_dir, key, pmeta = perturb.set_stage(folder, meta["key"], scene, ev.perturb, ev.seed,
+                                                configuration, cache_root)
+        stage = "reconstruct"  # artrecon's per-configuration part of it
+        conf, cmeta, chit = configuration_stage(set_dir, key, configuration, ev, cache_root,
+                                                settings)
+    except Exception as err:
+        err.stage = stage  # which stage failed, for the scene's record (crosses processes)
+        raise
+    return {"set": set_dir, "capture": meta, "key": key, "perturb": pmeta,
+            "configuration": conf,
+            "hits": [n for n, h in ((f"capture_{configuration}", hit),
+                                    (f"configuration_{configuration}", chit)) if h],
+            "build_s": {f"capture_{configuration}": meta["build_s"],
+                        f"configuration_{configuration}": cmeta["build_s"]}}
+
+
+def configuration_chains(scene: Scene, ev: EvalConfig, cache_root: Path, scene_hash: str,
+                         settings: dict | None = None) -> dict[str, dict | BaseException]:
+    """:func:`configuration_chain` of A and B, each its result or its exception.
+
+    With ``ev.parallel_capture``, B runs in a second process (spawned: its own MuJoCo and OpenGL
+    context, no progress bar) while this process runs A: the two configurations are independent
+    until their models are matched, and most of each chain (planning, physics, rendering,
+    feature extraction, dense stereo) keeps one core busy.
+    """
+    out: dict[str, dict | BaseException] = {}
     pool = future = None
-    if ev.parallel_capture and len(todo) == 2:
+    if ev.parallel_capture:
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
         from dataclasses import replace
 
         pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
-        future = pool.submit(capture_stage, scene, "b", replace(ev, progress=False), cache_root,
-                             scene_hash)
+        future = pool.submit(configuration_chain, scene, "b", replace(ev, progress=False),
+                             cache_root, scene_hash, settings)
     try:
         for c in ("a", "b"):
             try:
                 out[c] = (future.result() if c == "b" and future is not None
-                          else capture_stage(scene, c, ev, cache_root, scene_hash))
+                          else configuration_chain(scene, c, ev, cache_root, scene_hash,
+                                                   settings))
             except Exception as err:
                 out[c] = err
     finally:
@@ -113,10 +179,12 @@ def capture_stages(scene: Scene, ev: EvalConfig, cache_root: Path,
 
 
 def reconstruct_stage(set_a: Path, set_b: Path, keys: tuple[str, str], ev: EvalConfig,
-                      cache_root: Path, settings: dict | None = None
+                      cache_root: Path, settings: dict | None = None,
+                      configurations: tuple[Path, Path] | None = None
                       ) -> tuple[Path, dict, bool]:
     """Reconstruct the model from the two image sets (cached), with the default settings
-    changed by ``settings`` (the scene's, :attr:`sim.scene.Scene.reconstruct_settings`).
+    changed by ``settings`` (the scene's, :attr:`sim.scene.Scene.reconstruct_settings`),
+    starting from the finished per-configuration stages when given (:func:`configuration_stage`).
     Returns the model folder (``model.json``, ``a/sparse/0`` ...), stage metadata, hit."""
     import artrecon
     from artrecon.reconstruct import ReconstructConfig, _jsonable, reconstruct, with_settings
@@ -129,7 +197,7 @@ def reconstruct_stage(set_a: Path, set_b: Path, keys: tuple[str, str], ev: EvalC
     def build(folder: Path) -> dict:
         model = reconstruct(set_a, set_b, poses=True if ev.poses == "fk" else None,
                             out_dir=folder / "model", seed=ev.seed, config=config,
-                            progress=ev.progress)
+                            progress=ev.progress, configurations=configurations)
         return {"timings": model.metadata.get("timings", {}),
                 "links": len(model.links), "joints": len(model.joints)}
 

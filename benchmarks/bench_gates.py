@@ -1,0 +1,131 @@
+"""The main job's verdict over seeds: so that one lucky seed cannot pass a scene (issue 19).
+
+    python benchmarks/bench_gates.py [SCENE ...] [--seeds 0 1 2] [--out runs/bench_gates]
+                                     [--repeat SEED]
+
+Runs ``python -m sim.evaluate``'s default configuration (:class:`sim.evaluate.EvalConfig` at its
+defaults but for the seed) on every bundled scene (or those named) for each seed, and writes
+``bench_gates.md`` and ``bench_gates.json`` into ``--out``: a table scene x seed x figure (the
+worst joint's axis angle, axis position and state error, segmentation, points off the object,
+manipulation error, tree) with each run's verdict, and per scene whether it passed on every
+seed. ``--repeat SEED`` evaluates that seed a second time in a fresh folder and reports whether
+the figures are the same (the same inputs must give the same model).
+
+Each seed has its own folder ``OUT/seed<k>`` whose stage cache serves a re-run; delete it for
+fresh figures. Figures only, no asserts: the gates are asserted by tests/test_gates.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import sim  # noqa: F401
+from artrecon.io import write_json_atomic, write_text_atomic
+from sim import evaluate
+from sim.evaluate import gates
+from sim.scene import list_scenes
+
+
+def figures(r: dict) -> dict:
+    """The headline figures of one scene's result (worst over its joints)."""
+    rows = r.get("joints") or []
+
+    def worst(key):
+        vals = [row.get(key) for row in rows]
+        return None if not vals or any(v is None for v in vals) else max(vals)
+
+    man = r.get("manipulation") or {}
+    seg = r.get("segmentation") or {}
+    return {"axis_angle_deg": worst("axis_angle_deg"),
+            "axis_position_mm": max((row["axis_position_mm"] for row in rows
+                                     if row.get("axis_position_mm") is not None), default=None),
+            "state_error": worst("state_error"),
+            "segmentation_accuracy": r.get("segmentation_accuracy"),
+            "off_object_share": seg.get("off_surface_share"),
+            "manipulation_relative_error": man.get("relative_error"),
+            "tree": None if r.get("tree_correct") is None else bool(r["tree_correct"]),
+            "wall_s": r.get("wall_s")}
+
+
+def _f(v, d=3) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "NO"
+    return f"{v:.{d}f}"
+
+
+def table(runs: dict) -> str:
+    """Markdown table of ``{scene: {seed: result}}``."""
+    head = ["scene", "seed", "axis deg", "pos mm", "state", "seg", "off obj", "manip err",
+            "tree", "wall s", "verdict", "failed gates"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for scene, by_seed in runs.items():
+        for seed, r in sorted(by_seed.items()):
+            f = figures(r)
+            failed = ", ".join(sorted({g["gate"] for g in r.get("failed_gates") or []}))
+            lines.append("| " + " | ".join([
+                scene, str(seed), _f(f["axis_angle_deg"]), _f(f["axis_position_mm"], 2),
+                _f(f["state_error"]), _f(f["segmentation_accuracy"]), _f(f["off_object_share"]),
+                _f(f["manipulation_relative_error"]), _f(f["tree"]), _f(f["wall_s"], 0),
+                "ERROR" if r.get("error") else ("PASS" if r.get("passed") else "FAIL"),
+                (r.get("error") or failed)[:80]]) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("scenes", nargs="*", help=f"default: every bundled scene {list_scenes()}")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--out", type=Path, default=Path("runs/bench_gates"))
+    p.add_argument("--repeat", type=int, help="evaluate this seed twice and compare")
+    args = p.parse_args(argv)
+    names = args.scenes or list_scenes()
+    runs: dict[str, dict[int, dict]] = {n: {} for n in names}
+    t0 = time.perf_counter()
+    for seed in args.seeds:
+        ev = evaluate.EvalConfig(seed=seed, progress=False)
+        for name in names:
+            r = evaluate.evaluate_scene(name, ev, args.out / f"seed{seed}")
+            runs[name][seed] = {k: v for k, v in r.items() if not k.startswith("_")}
+            verdict = "ERROR" if r["error"] else "PASS" if r["passed"] else "FAIL"
+            print(f"{name} seed {seed}: {verdict} ({r['wall_s']:.0f} s)", flush=True)
+    summary = {n: all(r.get("passed") for r in by.values()) for n, by in runs.items()}
+    repeat = None
+    if args.repeat is not None:
+        ev = evaluate.EvalConfig(seed=args.repeat, progress=False)
+        repeat = {}
+        for name in names:
+            first = runs[name].get(args.repeat) or evaluate.evaluate_scene(
+                name, ev, args.out / f"seed{args.repeat}")
+            second = evaluate.evaluate_scene(name, ev, args.out / f"repeat{args.repeat}")
+            a, b = ({**figures(r), "wall_s": None} for r in (first, second))
+            repeat[name] = {"same_figures": a == b, "first": a, "second": b}
+    md = ["# The main job's verdict over seeds", "",
+          f"`python benchmarks/bench_gates.py {' '.join(sys.argv[1:] if argv is None else argv)}`"
+          f", seeds {args.seeds}, {time.perf_counter() - t0:.0f} s in all; gates: "
+          + ", ".join(f"{k} {v}" for k, v in gates.GATES.items()), "", table(runs), "",
+          "Passed on every seed: " + ", ".join(f"{n} {'yes' if ok else 'NO'}"
+                                              for n, ok in summary.items())]
+    if repeat is not None:
+        md += ["", f"Seed {args.repeat} evaluated twice: "
+               + ", ".join(f"{n} {'same' if v['same_figures'] else 'DIFFERENT'}"
+                           for n, v in repeat.items())]
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(args.out / "bench_gates.md", "\n".join(md) + "\n")
+    write_json_atomic(args.out / "bench_gates.json",
+                      {"runs": {n: {str(s): {**figures(r), "passed": r.get("passed"),
+                                             "error": r.get("error"),
+                                             "failed_gates": r.get("failed_gates")}
+                                    for s, r in by.items()} for n, by in runs.items()},
+                       "passed_every_seed": summary, "repeat": repeat,
+                       "gates": gates.GATES})
+    print("\n".join(md))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
