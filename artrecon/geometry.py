@@ -18,6 +18,7 @@ __all__ = [
     "quat_wxyz_to_matrix",
     "pose",
     "invert_pose",
+    "transform_points",
 ]
 
 
@@ -91,3 +92,10 @@ def invert_pose(T: np.ndarray) -> np.ndarray:
     """Inverse of a rigid (4, 4) pose, without a general matrix inverse."""
     R, t = T[:3, :3], T[:3, 3]
     return pose(R.T, -R.T @ t)
+
+
+def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(n, 3) points mapped by a (4, 4) pose: ``p_a = T_a_b @ p_b`` for each row of ``points``
+    (given in frame b)."""
+    T = np.asarray(T, dtype=float)
+    return np.asarray(points, dtype=float) @ T[:3, :3].T + T[:3, 3]

@@ -17,6 +17,7 @@ image whose ``T_world_camera`` is null has no known pose.
 
 from __future__ import annotations
 
+import filecmp
 import hashlib
 import json
 import logging
@@ -368,27 +369,158 @@ def write_json_atomic(path: str | os.PathLike, obj, indent: int | None = 2) -> P
     return write_text_atomic(path, text + "\n")
 
 
-_PLY_TYPES = {"<f4": "float", "u1": "uchar"}
+class StagedFiles:
+    """Several files written together, each whole or not at all.
+
+    :meth:`write` puts each file's bytes in a temporary file beside its target; :meth:`commit`
+    first checks every target (none may be a protected input; none may exist unless
+    ``overwrite``), then renames the temporaries into place in the order written (so the file
+    that names the others goes last, and never names a missing one); :meth:`abort` removes the
+    temporaries. An interrupted write (an exception, Ctrl-C, a kill) leaves the old files and at
+    most hidden ``.NAME.*.tmp`` temporaries, never half of a file under its name.
+
+    Parameters
+    ----------
+    overwrite : bool
+        Replace existing targets. When False, :meth:`commit` raises InputError naming them.
+    protect : iterable of path
+        Inputs that must never be written over (e.g. the model file being exported).
+    """
+
+    def __init__(self, overwrite: bool = True, protect=()) -> None:
+        self.overwrite = overwrite
+        self.protect = [Path(p) for p in protect]
+        self._pending: list[tuple[Path, Path]] = []
+
+    def write(self, path: str | os.PathLike, data: bytes) -> None:
+        """Stage ``data`` for ``path`` (its folder is created now)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(data)
+            os.chmod(tmp, 0o666 & ~umask())  # mkstemp makes 0600; give the usual mode
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        self._pending.append((Path(tmp), path))
+
+    def targets(self) -> list[Path]:
+        """The files staged so far, in the order they will be put in place."""
+        return [path for _, path in self._pending]
+
+    def check(self) -> None:
+        """InputError if a target is a protected input, a folder, or (without ``overwrite``)
+        an existing file with other contents."""
+        for path in self.targets():
+            for p in self.protect:
+                if path.resolve() == p.resolve() or (path.exists() and p.exists()
+                                                     and os.path.samefile(path, p)):
+                    raise InputError(f"{path} is the input {p}; writing it would destroy the "
+                                     "input. Choose another output path")
+            if path.is_dir():
+                raise InputError(f"{path} is a folder, where a file would be written; name "
+                                 "another output path")
+        # a file that already holds exactly these bytes is not replaced by anything new (e.g. the
+        # meshes an MJCF and a URDF export of one twin share)
+        existing = [path for tmp, path in self._pending
+                    if path.exists() and not filecmp.cmp(tmp, path, shallow=False)]
+        if existing and not self.overwrite:
+            more = f" and {len(existing) - 1} more" if len(existing) > 1 else ""
+            raise InputError(f"{existing[0]}{more} exist(s) already; nothing was written. "
+                             "Choose another output path, or pass --overwrite to replace them")
+
+    def commit(self) -> list[Path]:
+        """Check the targets (:meth:`check`), then rename every staged file into place;
+        returns the paths in order. On any failure the temporaries not yet renamed are
+        removed."""
+        try:
+            self.check()
+            done = []
+            for tmp, path in self._pending:  # in order of writing: the main file last
+                os.replace(tmp, path)
+                done.append(path)
+        except BaseException:
+            self.abort()
+            raise
+        self._pending = []
+        return done
+
+    def abort(self) -> None:
+        """Remove the staged temporaries (the targets are untouched)."""
+        for tmp, _ in self._pending:
+            tmp.unlink(missing_ok=True)
+        self._pending = []
 
 
-def write_ply(path: str | Path, points: np.ndarray, normals: np.ndarray | None = None,
-              colours: np.ndarray | None = None) -> Path:
-    """Binary little-endian PLY of points (n, 3) with optional normals (n, 3) and RGB (n, 3),
-    written whole or not at all."""
+
+def write_files_atomic(files, *, overwrite: bool = True, protect=()) -> list[Path]:
+    """Write several files together, whole or not at all (:class:`StagedFiles`).
+
+    Parameters
+    ----------
+    files : iterable of (path, bytes)
+        In order; the last is put in place last. A generator may compute each file's bytes
+        when asked: an exception in it (or Ctrl-C) leaves every target as it was.
+    overwrite : bool
+        Replace existing files (else InputError, nothing written).
+    protect : iterable of path
+        Inputs that must never be written over.
+
+    Returns
+    -------
+    list of Path
+        The files written, in order.
+    """
+    staged = StagedFiles(overwrite, protect)
+    try:
+        for path, data in files:
+            staged.write(path, data)
+    except BaseException:
+        staged.abort()
+        raise
+    return staged.commit()
+
+
+_PLY_TYPES = {"<f4": "float", "<f8": "double", "u1": "uchar"}
+
+
+def ply_bytes(points: np.ndarray, normals: np.ndarray | None = None,
+              colours: np.ndarray | None = None, precision: str = "float") -> bytes:
+    """A binary little-endian PLY of points with optional normals and RGB colours.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    normals : (n, 3) float, optional
+    colours : (n, 3) uint8, optional
+    precision : {"float", "double"}
+        Coordinates and normals as 32-bit (the reconstruction's folders) or 64-bit floats
+        (exported twins, exact to the last bit).
+
+    Returns
+    -------
+    bytes
+        Header and vertex records: x y z [nx ny nz] [red green blue].
+    """
+    if precision not in ("float", "double"):
+        raise ValueError(f"precision must be 'float' or 'double', got {precision!r}")
+    kind = "<f4" if precision == "float" else "<f8"
     points = np.asarray(points, dtype=float)
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"points: expected shape (n, 3), got {points.shape}")
     n = len(points)
     columns = {"x": points[:, 0], "y": points[:, 1], "z": points[:, 2]}
-    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
-    for names, values, kind in ((("nx", "ny", "nz"), normals, "<f4"),
-                                (("red", "green", "blue"), colours, "u1")):
+    fields = [("x", kind), ("y", kind), ("z", kind)]
+    for names, values, vkind in ((("nx", "ny", "nz"), normals, kind),
+                                 (("red", "green", "blue"), colours, "u1")):
         if values is None:
             continue
         values = np.asarray(values)
         if values.shape != (n, 3):
             raise ValueError(f"{names}: expected shape ({n}, 3), got {values.shape}")
-        fields += [(c, kind) for c in names]
+        fields += [(c, vkind) for c in names]
         columns.update({c: values[:, k] for k, c in enumerate(names)})
     rec = np.zeros(n, dtype=fields)
     for name, _ in fields:
@@ -396,7 +528,14 @@ def write_ply(path: str | Path, points: np.ndarray, normals: np.ndarray | None =
     header = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
     header += [f"property {_PLY_TYPES[t]} {name}" for name, t in fields]
     header.append("end_header")
-    return write_bytes_atomic(path, ("\n".join(header) + "\n").encode("ascii") + rec.tobytes())
+    return ("\n".join(header) + "\n").encode("ascii") + rec.tobytes()
+
+
+def write_ply(path: str | Path, points: np.ndarray, normals: np.ndarray | None = None,
+              colours: np.ndarray | None = None) -> Path:
+    """Binary little-endian PLY of points (n, 3) with optional normals (n, 3) and RGB (n, 3)
+    (32-bit floats, :func:`ply_bytes`), written whole or not at all."""
+    return write_bytes_atomic(path, ply_bytes(points, normals, colours))
 
 
 def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:

@@ -20,6 +20,7 @@ from synthetic import make_object
 
 from artrecon import export as ex
 from artrecon.errors import InputError
+from artrecon.export import robotfile
 from artrecon.joints import joint_from_motion, relative_motion
 from artrecon.model import ArticulatedModel, Joint, Link
 
@@ -358,7 +359,7 @@ def test_writes_are_whole_or_not_at_all(tmp_path, monkeypatch):
     out = tmp_path / "twin.xml"
     out.write_text("old")
     calls = {"n": 0}
-    real = ex._mesh_bytes
+    real = robotfile.mesh_bytes
 
     def failing(mesh):
         calls["n"] += 1
@@ -366,16 +367,16 @@ def test_writes_are_whole_or_not_at_all(tmp_path, monkeypatch):
             raise OSError("disk full")
         return real(mesh)
 
-    monkeypatch.setattr(ex, "_mesh_bytes", failing)
+    monkeypatch.setattr(robotfile, "mesh_bytes", failing)
     with pytest.raises(OSError, match="disk full"):
         ex.export_mjcf(twin, out)
     assert out.read_text() == "old"
     leftovers = [p for p in tmp_path.rglob("*") if p.is_file() and p != out]
     assert leftovers == []
-    monkeypatch.setattr(ex, "_mesh_bytes", real)
+    monkeypatch.setattr(robotfile, "mesh_bytes", real)
     paths = ex.export_mjcf(twin, out)
     assert paths[-1] == out and all(p.is_file() for p in paths)
-    assert not list(tmp_path.rglob("*.partial"))
+    assert not list(tmp_path.rglob(".*.tmp"))
     mujoco.MjModel.from_xml_path(str(out))
 
 
