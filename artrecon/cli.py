@@ -34,11 +34,13 @@ def _parser() -> argparse.ArgumentParser:
                    "poses fixed instead of searching for them (faster, metric)")
     r.add_argument("--set", dest="settings", action="append", default=[],
                    metavar="STAGE.FIELD=VALUE", help="change one reconstruction setting (a "
-                   "field of artrecon.reconstruct.ReconstructConfig; repeatable), e.g. "
-                   "dense.downsample=1: full-resolution stereo for objects whose parts are only "
-                   "a few millimetres thick (about 5x the dense stage's time)")
+                   "field of artrecon.reconstruct.ReconstructConfig, within its range in "
+                   "artrecon.settings.RANGES; repeatable), e.g. dense.downsample=1: "
+                   "full-resolution stereo for objects whose parts are only a few millimetres "
+                   "thick (about 5x the dense stage's time), or sfm.matching=exhaustive")
     r.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    r.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    r.add_argument("--overwrite", action="store_true", help="replace an existing output folder "
+                   "(only a previous result: a folder holding model.json)")
     r.add_argument("--quiet", action="store_true", help="no progress bars, warnings only")
     r.set_defaults(handler=_run_reconstruct)
     from artrecon.export import add_export_parser
@@ -55,20 +57,22 @@ def main(argv: list[str] | None = None) -> int:
     return args.handler(args)
 
 
-def parse_settings(items: list[str]) -> dict[str, float]:
-    """``["dense.downsample=1", ...]`` -> ``{"dense.downsample": 1.0}`` (InputError if malformed;
-    the names and values are checked by artrecon.reconstruct.with_settings)."""
-    out = {}
+def parse_settings(items: list[str]) -> dict[str, float | str]:
+    """``["dense.downsample=1", "sfm.matching=exhaustive"]`` -> ``{"dense.downsample": 1.0,
+    "sfm.matching": "exhaustive"}``: numbers as float, other values as text (InputError if an
+    item is not STAGE.FIELD=VALUE; names, kinds and ranges are checked by
+    artrecon.settings.apply_settings)."""
+    out: dict[str, float | str] = {}
     for item in items:
-        key, _, value = item.partition("=")
-        try:
-            number = float(value)
-        except ValueError:
-            number = None
-        if number is None or not key.strip():
-            raise InputError(f"--set {item!r}: expected STAGE.FIELD=NUMBER, e.g. "
+        key, eq, value = item.partition("=")
+        key, value = key.strip(), value.strip()
+        if not eq or not key or not value:
+            raise InputError(f"--set {item!r}: expected STAGE.FIELD=VALUE, e.g. "
                              "dense.downsample=1")
-        out[key.strip()] = number
+        try:
+            out[key] = float(value)
+        except ValueError:
+            out[key] = value
     return out
 
 
@@ -91,8 +95,8 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
         print(f"artrecon: error: {exc}; nothing was written to {args.out}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"artrecon: interrupted; nothing was written to {args.out} (run again to start "
-              "over)", file=sys.stderr)
+        print(f"artrecon: interrupted; {args.out} is as it was (run again to start over)",
+              file=sys.stderr)
         return 130
     print(f"wrote {args.out}: {len(model.links)} links, {len(model.joints)} joints")
     for j in model.joints:

@@ -234,7 +234,94 @@ def make_work_dir(out_dir: str | Path) -> Path:
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_work_dirs(out_dir)
     prefix = _WORK_PREFIX.format(name=out_dir.name) + f"{os.getpid()}-"
-    return Path(tempfile.mkdtemp(prefix=prefix, dir=out_dir.parent))
+    work = Path(tempfile.mkdtemp(prefix=prefix, dir=out_dir.parent))
+    # mkdtemp makes 0700; the published folder gets the usual mode (as mkdir would give it)
+    os.chmod(work, 0o777 & ~umask())
+    return work
+
+
+def check_output_path(out: str | Path, inputs, *, flag: str = "--out",
+                      example: str | Path | None = None) -> Path:
+    """Refuse an output path that is an input, contains one, or lies inside an input folder.
+
+    Writing there would replace an input (``--overwrite`` replaces the output folder whole) or
+    add files to it. Symbolic links are followed.
+
+    Parameters
+    ----------
+    out : path
+        The output file or folder.
+    inputs : iterable of path
+        Input files and folders (image folders, a scene file and the files it references...).
+    flag : str
+        How the user named ``out`` (for the message).
+    example : path, optional
+        An output path to suggest.
+
+    Returns
+    -------
+    Path
+        ``out``, absolute.
+
+    Raises
+    ------
+    InputError
+        Naming the input and what to do.
+    """
+    out = Path(out)
+    out_r = out.resolve()
+    for inp in inputs:
+        inp = Path(inp)
+        inp_r = inp.resolve()
+        if out_r == inp_r:
+            problem = f"is the input {inp}"
+        elif inp_r.is_relative_to(out_r):
+            problem = f"contains the input {inp}"
+        elif out_r.is_relative_to(inp_r) and inp_r.is_dir():
+            problem = f"lies inside the input folder {inp}"
+        else:
+            continue
+        hint = f", e.g. {flag} {example}" if example is not None else ""
+        raise InputError(f"{flag} {out} {problem}: writing the result there would replace or "
+                         f"change an input, so nothing was done. Choose a path outside the "
+                         f"inputs{hint}")
+    return out_r
+
+
+def check_output_dir(out_dir: str | Path, inputs=(), *, overwrite: bool = False,
+                     marker: str | None = None, flag: str = "--out",
+                     example: str | Path | None = None) -> Path:
+    """Check a folder a command will create (or, with ``overwrite``, replace whole).
+
+    :func:`check_output_path` first; then an existing ``out_dir`` is refused when it is a file
+    (never replaced by a folder), when ``overwrite`` is not given, or when it is a non-empty
+    folder without ``marker`` (a file every result of this command holds, e.g. ``model.json``):
+    ``--overwrite`` replaces only a result of the same command, never a folder of other files.
+
+    Returns
+    -------
+    Path
+        ``out_dir`` (as given).
+
+    Raises
+    ------
+    InputError
+    """
+    out_dir = Path(out_dir)
+    check_output_path(out_dir, inputs, flag=flag, example=example)
+    if out_dir.is_symlink() or (out_dir.exists() and not out_dir.is_dir()):
+        kind = "a symbolic link" if out_dir.is_symlink() else "a file"
+        raise InputError(f"{flag} {out_dir} is {kind}, not a folder; the output is a folder: "
+                         f"name a new one (a file is never replaced)")
+    if out_dir.exists():
+        if not overwrite:
+            raise InputError(f"output folder {out_dir} exists; choose another {flag} or pass "
+                             "--overwrite (overwrite=True) to replace it")
+        if marker is not None and any(out_dir.iterdir()) and not (out_dir / marker).exists():
+            raise InputError(f"{flag} {out_dir} is a folder that holds no {marker}, so no result "
+                             f"of this command; --overwrite replaces only such results (whole), "
+                             f"never other files: choose a new folder for {flag}")
+    return out_dir
 
 
 def publish_dir(work: str | Path, out_dir: str | Path) -> Path:

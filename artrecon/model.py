@@ -325,54 +325,89 @@ class ArticulatedModel:
 
     @classmethod
     def from_dict(cls, d: dict) -> ArticulatedModel:
+        """The model of a dict written by :meth:`to_dict`.
+
+        Raises
+        ------
+        InputError
+            Not a model of this format (naming what is there instead), a model of a newer
+            format version (upgrade artrecon), or a malformed element (naming it: ``links[2]
+            .points``, ``joints[0]``...).
+        """
+        if not isinstance(d, dict):
+            raise InputError(f"not an artrecon articulated model: the JSON holds a "
+                             f"{type(d).__name__}, not an object with \"format\": "
+                             "\"artrecon.ArticulatedModel\"; pass the model.json a "
+                             "reconstruction wrote")
         if d.get("format") != "artrecon.ArticulatedModel":
             raise InputError(
                 f"not an artrecon articulated model (format={d.get('format')!r}); expected a file "
                 "written by ArticulatedModel.save"
             )
-        if d.get("version") != FORMAT_VERSION:
+        version = d.get("version")
+        if isinstance(version, int) and not isinstance(version, bool) and \
+                version > FORMAT_VERSION:
+            from artrecon import __version__
+
             raise InputError(
-                f"articulated model format version {d.get('version')} is not supported (this "
-                f"artrecon reads version {FORMAT_VERSION}); re-export the model"
+                f"the model is in format version {version}, written by a newer artrecon; this "
+                f"artrecon ({__version__}) reads version {FORMAT_VERSION}: upgrade artrecon "
+                "(pip install --upgrade artrecon) to read it")
+        if version != FORMAT_VERSION:
+            raise InputError(
+                f"articulated model format version {version!r} is not supported (this "
+                f"artrecon reads version {FORMAT_VERSION}); reconstruct the model again with "
+                "this artrecon"
             )
-        links = [
-            Link(
-                points=_decode(lk["points"]),
-                match_indices=_decode(lk["match_indices"]),
-                transform_a_to_b=Similarity.from_dict(lk["transform_a_to_b"]),
-                colours=_decode(lk["colours"]),
-                normals=_decode(lk["normals"]),
-                name=lk["name"],
-                observed_in=_decode(lk.get("observed_in")),
+        where = "the model"
+        try:
+            links = []
+            for i, lk in enumerate(_items(d, "links")):
+                where = f"links[{i}]"
+                links.append(Link(
+                    points=_decode(lk["points"]),
+                    match_indices=_decode(lk["match_indices"]),
+                    transform_a_to_b=Similarity.from_dict(lk["transform_a_to_b"]),
+                    colours=_decode(lk["colours"]),
+                    normals=_decode(lk["normals"]),
+                    name=lk["name"],
+                    observed_in=_decode(lk.get("observed_in")),
+                ))
+            joints = []
+            for i, j in enumerate(_items(d, "joints")):
+                where = f"joints[{i}]"
+                joints.append(Joint(
+                    type=j["type"],
+                    axis_direction=np.array(j["axis_direction"], dtype=float),
+                    axis_point=np.array(j["axis_point"], dtype=float),
+                    parent=j["parent"],
+                    child=j["child"],
+                    state_a=j["state_a"],
+                    state_b=j["state_b"],
+                    name=j["name"],
+                    relative_transform=Similarity.from_dict(j["relative_transform"]),
+                    residual=j["residual"],
+                    confidence=j.get("confidence") or {},  # absent in files before confidence
+                ))
+            where = "the model's scale, frames or root"
+            return cls(
+                links=links,
+                joints=joints,
+                scale=float(d["scale"]),
+                frames={k: _decode(v) for k, v in d["frames"].items()},
+                root=int(d["root"]),
+                scale_a_to_b=float(d["scale_a_to_b"]),
+                scale_known=bool(d["scale_known"]),
+                metadata=d.get("metadata", {}),
             )
-            for lk in d["links"]
-        ]
-        joints = [
-            Joint(
-                type=j["type"],
-                axis_direction=np.array(j["axis_direction"], dtype=float),
-                axis_point=np.array(j["axis_point"], dtype=float),
-                parent=j["parent"],
-                child=j["child"],
-                state_a=j["state_a"],
-                state_b=j["state_b"],
-                name=j["name"],
-                relative_transform=Similarity.from_dict(j["relative_transform"]),
-                residual=j["residual"],
-                confidence=j.get("confidence") or {},  # absent in files before confidence
-            )
-            for j in d["joints"]
-        ]
-        return cls(
-            links=links,
-            joints=joints,
-            scale=float(d["scale"]),
-            frames={k: _decode(v) for k, v in d["frames"].items()},
-            root=int(d["root"]),
-            scale_a_to_b=float(d["scale_a_to_b"]),
-            scale_known=bool(d["scale_known"]),
-            metadata=d.get("metadata", {}),
-        )
+        except InputError:
+            raise
+        except KeyError as exc:
+            raise InputError(f"{where}: missing key {exc}; the file is damaged or was not "
+                             "written by artrecon: reconstruct again or restore it") from exc
+        except (TypeError, ValueError, AttributeError, IndexError) as exc:
+            raise InputError(f"{where} is malformed ({exc}); the file is damaged or was not "
+                             "written by artrecon: reconstruct again or restore it") from exc
 
     def save(self, path: str | Path) -> Path:
         """Write the model as JSON (lossless); returns the path."""
@@ -385,17 +420,24 @@ class ArticulatedModel:
 
     @classmethod
     def load(cls, path: str | Path) -> ArticulatedModel:
-        """Read a model written by `save`."""
+        """Read a model written by `save` (InputError naming the file and what is wrong)."""
         path = Path(path)
+        if path.is_dir():
+            raise InputError(f"{path} is a folder; name the model file, e.g. "
+                             f"{path / 'model.json'}")
         if not path.is_file():
             raise InputError(
                 f"articulated model file {path} does not exist; run the reconstruction first"
             )
         try:
             d = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
-            raise InputError(f"{path} is not valid JSON ({exc}); re-export the model") from exc
-        return cls.from_dict(d)
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise InputError(f"{path} is not valid JSON ({exc}); pass the model.json a "
+                             "reconstruction wrote (reconstruct again if it is damaged)") from exc
+        try:
+            return cls.from_dict(d)
+        except InputError as exc:
+            raise InputError(f"{path}: {exc}") from exc
 
 
 def _encode(a: np.ndarray | None):
@@ -403,6 +445,14 @@ def _encode(a: np.ndarray | None):
         return None
     a = np.asarray(a)
     return {"dtype": a.dtype.str, "shape": list(a.shape), "data": a.reshape(-1).tolist()}
+
+
+def _items(d: dict, key: str) -> list:
+    """``d[key]``, which must be a list (TypeError otherwise: a malformed model)."""
+    items = d[key]
+    if not isinstance(items, list):
+        raise TypeError(f"{key!r} must be a list, got a {type(items).__name__}")
+    return items
 
 
 def _decode(d) -> np.ndarray | None:

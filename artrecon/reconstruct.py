@@ -37,7 +37,7 @@ import shutil
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +65,7 @@ from artrecon.features import (
 from artrecon.io import (
     Intrinsics,
     check_distinct,
+    check_output_dir,
     load_cameras_json,
     load_image_folder,
     make_work_dir,
@@ -81,6 +82,7 @@ from artrecon.segment import (
     min_link_size,
     segment_links,
 )
+from artrecon.settings import apply_settings
 from artrecon.sfm import SfMConfig
 
 log = logging.getLogger(__name__)
@@ -126,44 +128,14 @@ class ReconstructConfig:
     guided: GuidedConfig = field(default_factory=GuidedConfig)
 
 
-def with_settings(config: ReconstructConfig, settings: dict[str, float | int | bool]
+def with_settings(config: ReconstructConfig, settings: dict[str, float | int | bool | str]
                   ) -> ReconstructConfig:
     """``config`` with some settings changed, each named ``"stage.field"`` as in
     :class:`ReconstructConfig` (e.g. ``{"dense.downsample": 1}``: full-resolution stereo for
-    thin objects). A value is converted to the field's type (an int field takes only whole
-    numbers); an unknown stage or field, or a value of the wrong kind, raises InputError."""
-    stages = {f.name: getattr(config, f.name) for f in fields(config)}
-    changed: dict[str, dict] = {}
-    for key, value in settings.items():
-        stage, _, name = key.partition(".")
-        if stage not in stages or not name:
-            raise InputError(f"setting {key!r}: name it stage.field with a stage of "
-                             f"{sorted(stages)} (e.g. dense.downsample)")
-        sub = stages[stage]
-        known = {f.name for f in fields(sub)}
-        if name not in known:
-            raise InputError(f"setting {key!r}: {type(sub).__name__} has no field {name!r}; its "
-                             f"fields are {sorted(known)}")
-        default = getattr(sub, name)
-        kind = type(default)
-        if kind is bool:
-            if value not in (0, 1):
-                raise InputError(f"setting {key!r}: {value!r} is not a boolean (0 or 1)")
-            value = bool(value)
-        elif kind is int:
-            if float(value) != int(value):
-                raise InputError(f"setting {key!r}: {value!r} is not a whole number")
-            value = int(value)
-        elif kind is float:
-            value = float(value)
-        else:
-            raise InputError(f"setting {key!r}: a {kind.__name__} field cannot be set here")
-        changed.setdefault(stage, {})[name] = value
-    try:
-        return replace(config, **{stage: replace(stages[stage], **kw)
-                                  for stage, kw in changed.items()})
-    except ValueError as exc:  # a stage's own check (e.g. DenseConfig.downsample >= 1)
-        raise InputError(f"settings {settings}: {exc}") from exc
+    thin objects). Each value is checked against the field's range and converted to its type
+    (:func:`artrecon.settings.apply_settings`); an unknown stage or field, or a value of the wrong
+    kind, not finite or out of range, raises InputError naming the valid range."""
+    return apply_settings(config, settings)
 
 
 def merge_equivalent_links(points_a: np.ndarray, points_b: np.ndarray,
@@ -662,10 +634,9 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
     set_b, intr_b, poses_b = _resolve_inputs(images_b, pair[1], poses_pair[1], "B")
     check_distinct(set_a, set_b)
     if out_dir is not None:
-        out_dir = Path(out_dir)
-        if out_dir.exists() and not overwrite:
-            raise InputError(f"output folder {out_dir} exists; choose another or pass "
-                             "overwrite=True (--overwrite)")
+        out_dir = check_output_dir(out_dir, [set_a.root, set_a.image_dir, set_b.root,
+                                             set_b.image_dir], overwrite=overwrite,
+                                   marker="model.json", example=set_a.root.parent / "model")
         work = make_work_dir(out_dir)  # also removes those of interrupted runs
     else:
         work = Path(tempfile.mkdtemp(prefix="artrecon-"))

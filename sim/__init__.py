@@ -32,3 +32,18 @@ def _egl_device_type() -> None:
 
 if os.environ.get("MUJOCO_GL") == "egl":
     _egl_device_type()
+
+
+def _mujoco_warnings_to_log() -> None:
+    """Send MuJoCo's warnings (e.g. "XML contains a 'NaN'") to the ``mujoco`` logger. Without a
+    handler MuJoCo prints them and appends them to MUJOCO_LOG.TXT in the working folder: a file
+    no command should write where the user happens to stand."""
+    import logging
+
+    import mujoco
+
+    log = logging.getLogger("mujoco")
+    mujoco.set_mju_user_warning(lambda message: log.warning("MuJoCo: %s", message))
+
+
+_mujoco_warnings_to_log()

@@ -449,7 +449,16 @@ def _parse_settings(model: mujoco.MjModel, path: Path) -> dict[str, float]:
         if int(model.numeric_size[i]) != 1:
             raise SceneError(f'{path}: <numeric name="{name}"> has {int(model.numeric_size[i])} '
                              f'values; fix: give exactly one, data="VALUE"')
-        settings[name[len(SETTINGS_PREFIX):]] = float(model.numeric_data[model.numeric_adr[i]])
+        key, value = name[len(SETTINGS_PREFIX):], float(model.numeric_data[model.numeric_adr[i]])
+        try:  # each element alone first, so that the message names it
+            with_settings(ReconstructConfig(), {key: value})
+        except InputError as exc:
+            raise SceneError(f'{path}: <numeric name="{name}" data="{value:g}">: '
+                             f"reconstruction {exc}; fix: name a field of "
+                             f"artrecon.reconstruct.ReconstructConfig, as <numeric name=\""
+                             f"{SETTINGS_PREFIX}STAGE.FIELD\" data=\"VALUE\"/> with a value in "
+                             f"its range, or remove the element") from exc
+        settings[key] = value
     try:
         with_settings(ReconstructConfig(), settings)
     except InputError as exc:

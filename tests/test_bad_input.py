@@ -82,10 +82,10 @@ def test_cli_bad_intrinsics_is_input_error(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("setting, needle", [
-    ("dense.downsample", "expected STAGE.FIELD=NUMBER"),
-    ("dense.downsample=full", "expected STAGE.FIELD=NUMBER"),
+    ("dense.downsample", "expected STAGE.FIELD=VALUE"),
+    ("dense.downsample=full", "dense.downsample=full: not a number"),
     ("dense.nope=1", "DenseConfig has no field 'nope'"),
-    ("dense.downsample=0", "downsample must be 1"),
+    ("dense.downsample=0", "takes a value in [1, 8]"),
     ("nope.x=1", "name it stage.field"),
 ])
 def test_cli_bad_setting_is_input_error(tmp_path, capsys, setting, needle):

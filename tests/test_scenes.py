@@ -373,10 +373,11 @@ def test_minimal_standalone_scene_loads(tmp_path):
       "reconstruct:STAGE.FIELD"]),
     ("bad setting value", dict(configs=_CONFIGS + '<numeric name="reconstruct:dense.downsample" '
                                                   'data="0.5"/>'),
-     ["'dense.downsample'", "not a whole number"]),
+     ['<numeric name="reconstruct:dense.downsample"', "not a whole number", "[1, 8]"]),
     ("setting out of range", dict(configs=_CONFIGS + '<numeric '
                                   'name="reconstruct:dense.downsample" data="0"/>'),
-     ["downsample must be 1", "(full resolution) or more"]),
+     ['<numeric name="reconstruct:dense.downsample"', "out of range", "[1, 8]",
+      "1 full resolution"]),
     ("no range", dict(range_=""), ['<joint name="lid_hinge">', "no range", 'range="LO HI"']),
     ("missing texture", dict(asset='<texture name="t" type="2d" file="no_such_texture.png"/>'),
      ["no_such_texture.png", "could not compile", "relative to the scene file's folder"]),

@@ -1,0 +1,286 @@
+"""The reconstruction's tunable settings: one checked range per field.
+
+A user changes a field of a stage's config (:class:`artrecon.reconstruct.ReconstructConfig`)
+with ``artrecon reconstruct ... --set STAGE.FIELD=VALUE`` or a scene's
+``<numeric name="reconstruct:STAGE.FIELD" data="VALUE"/>``; :func:`apply_settings` checks
+each value against :data:`RANGES` before any work, so that a value no stage can run with
+(``nan``, ``inf``, ``dense.downsample=1000``, ``segmentation.max_hypotheses=0``) is refused at
+once, naming the field's valid range, instead of failing a minute later with a message about the
+images. Every tunable field has a row (a test checks it); a field without one cannot be set.
+
+The ranges bound what the code can run with and what means something; they are not advice:
+the defaults (each field's docstring says why) are what the method is measured with.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+
+from artrecon.errors import InputError
+
+__all__ = ["Range", "Choice", "RANGES", "ORDERED", "check_setting", "apply_settings"]
+
+
+@dataclass(frozen=True)
+class Range:
+    """The valid values of a numeric (int or float) or boolean setting."""
+
+    low: float
+    """Smallest valid value ..."""
+    high: float
+    """... largest valid value."""
+    why: str = ""
+    """What the bounds stand for (shown with the range)."""
+    low_open: bool = False
+    """The value must be strictly greater than ``low``."""
+    high_open: bool = False
+    """The value must be strictly less than ``high``."""
+    odd: bool = False
+    """Only odd whole numbers (block sizes)."""
+
+    def text(self) -> str:
+        lo = "(" if self.low_open else "["
+        hi = ")" if self.high_open else "]"
+        odd = ", odd" if self.odd else ""
+        why = f" ({self.why})" if self.why else ""
+        return f"a value in {lo}{_num(self.low)}, {_num(self.high)}{hi}{odd}{why}"
+
+    def holds(self, value: float) -> bool:
+        above = value > self.low if self.low_open else value >= self.low
+        below = value < self.high if self.high_open else value <= self.high
+        return above and below and (not self.odd or int(value) % 2 == 1)
+
+
+@dataclass(frozen=True)
+class Choice:
+    """The valid values of a text setting."""
+
+    options: tuple[str, ...]
+
+    def text(self) -> str:
+        return "one of " + ", ".join(repr(o) for o in self.options)
+
+
+def _num(x) -> str:
+    """A number as a user would write it: whole numbers without a decimal point."""
+    if isinstance(x, str):
+        return repr(x)
+    x = float(x)
+    if math.isfinite(x) and x == int(x) and abs(x) < 1e15:
+        return str(int(x))
+    return f"{x:g}"
+
+
+_FRACTION = "a fraction"
+_OPEN = dict(low_open=True)
+
+#: One row per tunable field, ``"stage.field"`` as in ReconstructConfig. Lengths given as
+#: fractions are of the scene size or camera distance (see each config's docstrings).
+RANGES: dict[str, Range | Choice] = {
+    # --- sfm (artrecon.sfm.SfMConfig)
+    "sfm.max_num_features": Range(100, 65536, "SIFT features per image"),
+    "sfm.max_image_size": Range(160, 16384, "pixels, the longer side"),
+    "sfm.extractor": Choice(("colmap", "opencv")),
+    "sfm.opencv_contrast": Range(0, 0.5, "OpenCV SIFT contrast threshold", **_OPEN),
+    "sfm.first_octave": Range(-1, 3, "-1 upsamples the image 2x first"),
+    "sfm.matching": Choice(("auto", "exhaustive", "sequential")),
+    "sfm.pose_neighbours": Range(1, 1000, "images matched with each image"),
+    "sfm.pose_max_angle_deg": Range(0, 180, "degrees", **_OPEN),
+    "sfm.sequential_window": Range(1, 1000, "neighbours in name order"),
+    "sfm.retrieval_neighbours": Range(0, 1000, "0: no retrieval pairs"),
+    "sfm.retrieval_sample": Range(10, 100_000, "descriptors per image"),
+    "sfm.min_registered_fraction": Range(0, 1, _FRACTION, **_OPEN),
+    "sfm.num_threads": Range(-1, 1024, "-1 or 0: all cores"),
+    "sfm.max_layout_error": Range(0, 1, "a fraction of the cameras' spread", **_OPEN),
+    "sfm.max_pose_epipolar_px": Range(0, 1000, "pixels", **_OPEN),
+    "sfm.min_pose_triangulated_share": Range(0, 1, _FRACTION),
+    "sfm.suspect_pose_epipolar_px": Range(0, 1000, "pixels", **_OPEN),
+    # --- dense (artrecon.dense.DenseConfig)
+    "dense.downsample": Range(1, 8, "1 full resolution; at 8 a 640x480 image is 80x60 "
+                              "pixels, about the least block matching can work on"),
+    "dense.min_pair_angle_deg": Range(0, 90, "degrees", **_OPEN),
+    "dense.max_pair_angle_deg": Range(0, 90, "degrees", **_OPEN),
+    "dense.block_size": Range(1, 31, "SGBM block, pixels", odd=True),
+    "dense.uniqueness_ratio": Range(0, 100, "percent"),
+    "dense.disparity_margin": Range(0, 512, "pixels"),
+    "dense.edge_erosion_px": Range(0, 64, "pixels, 0 keeps the edges"),
+    "dense.edge_jump_px": Range(0, 100, "pixels of disparity", **_OPEN),
+    "dense.depth_tolerance": Range(0, 0.5, "a fraction of the depth", **_OPEN),
+    "dense.min_consistent": Range(1, 1000, "other images"),
+    "dense.max_free_space_ratio": Range(0, 1, _FRACTION),
+    "dense.crop_radius": Range(0, 100, "a fraction of the camera distance", **_OPEN),
+    "dense.voxel_pixels": Range(0, 100, "pixels", **_OPEN),
+    "dense.normal_neighbours": Range(3, 1000, "points"),
+    # --- region (artrecon.dense.RegionConfig)
+    "region.radius_fraction": Range(0, 100, "a fraction of the camera distance", **_OPEN),
+    "region.plane_tolerance": Range(0, 1, "a fraction of the camera distance", **_OPEN),
+    "region.plane_min_fraction": Range(0, 1, _FRACTION),
+    "region.plane_iterations": Range(1, 1_000_000, "RANSAC hypotheses"),
+    "region.plane_noise_factor": Range(0, 1000, "times the table's noise", **_OPEN),
+    "region.plane_min_height": Range(0, 1, "a fraction of the camera distance"),
+    # --- match (artrecon.features.MatchConfig, GuidedConfig)
+    "match.ratio": Range(0, 1, "Lowe's ratio", **_OPEN),
+    "match.images_per_image": Range(1, 10_000, "images"),
+    "match.retrieval_sample": Range(10, 100_000, "descriptors per image"),
+    "match.min_votes": Range(1, 1000, "image pairs"),
+    "match.min_matches": Range(3, 10_000_000, "3D-3D matches"),
+    "guided.enabled": Range(0, 1, "0 or 1"),
+    "guided.min_similarity": Range(0, 1, "cosine similarity"),
+    "guided.margin": Range(0, 1, "cosine similarity"),
+    "guided.rounds": Range(0, 100, "0: no guided matching"),
+    # --- segmentation (artrecon.segment.SegmentationConfig)
+    "segmentation.inlier_threshold": Range(0, 1, "a fraction of the scene size", **_OPEN),
+    "segmentation.adaptive_threshold_factor": Range(0, 1000, "times the median residual",
+                                                    **_OPEN),
+    "segmentation.min_link_points": Range(3, 10_000_000, "matches (3 fix a rigid motion)"),
+    "segmentation.min_link_fraction": Range(0, 0.5, _FRACTION),
+    "segmentation.confidence": Range(0, 1, "a probability", low_open=True, high_open=True),
+    "segmentation.max_hypotheses": Range(1, 10_000_000, "hypotheses per round"),
+    "segmentation.min_hypotheses": Range(1, 10_000_000, "hypotheses per round"),
+    "segmentation.min_triplet_spread": Range(0, 1, "a fraction of the scene size",
+                                             high_open=True),
+    "segmentation.score_subset": Range(16, 100_000_000, "matches"),
+    "segmentation.batch_size": Range(1, 1_000_000, "hypotheses"),
+    "segmentation.refine_iterations": Range(0, 10_000, "rounds"),
+    "segmentation.shared_scale": Range(0, 1, "0 or 1"),
+    "segmentation.max_links": Range(1, 10_000, "links"),
+    "segmentation.min_links": Range(1, 10_000, "links (1 accepts a single rigid body)"),
+    "segmentation.restarts": Range(1, 10_000, "runs"),
+    "segmentation.selection_factor": Range(0, 1000, "times the median residual", **_OPEN),
+    # --- joints (artrecon.joints.JointConfig)
+    "joints.revolute_min_angle": Range(0, math.pi / 2, "radians", **_OPEN),
+    "joints.adjacency_distance": Range(0, 100, "a fraction of the scene size", **_OPEN),
+    "joints.misfit_weight": Range(0, 1e6, "a weight"),
+    "joints.axis_gap_weight": Range(0, 1e6, "a weight"),
+    # --- assign (artrecon.assign.AssignConfig)
+    "assign.residual_factor": Range(0, 1000, "times the link's residual", **_OPEN),
+    "assign.spacing_factor": Range(0, 1000, "point spacings", **_OPEN),
+    "assign.zbuffer_cell": Range(1, 256, "pixels"),
+    "assign.depth_tolerance": Range(0, 0.5, "a fraction of the depth", **_OPEN),
+    "assign.violations_saturate": Range(1, 10_000, "cameras"),
+    "assign.cost_no_fit": Range(0, 1000, "a cost"),
+    "assign.cost_violation": Range(0, 1000, "a cost"),
+    "assign.cost_photo": Range(0, 1000, "a cost"),
+    "assign.cost_match": Range(0, 1000, "a cost"),
+    "assign.match_reach": Range(0, 1e6, "point spacings", **_OPEN),
+    "assign.smoothness": Range(0, 1000, "a Potts weight"),
+    "assign.neighbours": Range(1, 256, "graph neighbours"),
+    "assign.neighbour_radius": Range(0, 1000, "point spacings", **_OPEN),
+    "assign.expansion_cycles": Range(1, 1000, "passes"),
+    "assign.passes": Range(1, 100, "passes"),
+    "assign.patch_half": Range(1, 64, "samples"),
+    "assign.patch_step_px": Range(0, 100, "pixels", **_OPEN),
+    # --- confidence (artrecon.confidence.ConfidenceConfig)
+    "confidence.min_link_inliers": Range(3, 10_000_000, "matches"),
+    "confidence.min_motion_snr": Range(0, 1e6, "times the noise"),
+    "confidence.max_axis_spread_deg": Range(0, 180, "degrees", **_OPEN),
+    "confidence.max_point_spread": Range(0, 100, "a fraction of the scene size", **_OPEN),
+    "confidence.min_type_agreement": Range(0, 1, _FRACTION),
+    "confidence.bootstrap_samples": Range(10, 1_000_000, "resamples"),
+    "confidence.refuse": Range(0, 1, "0 or 1"),
+}
+
+#: Pairs of settings where the first may not exceed the second (checked after applying).
+ORDERED = (
+    ("dense.min_pair_angle_deg", "dense.max_pair_angle_deg"),
+    ("segmentation.min_hypotheses", "segmentation.max_hypotheses"),
+    ("segmentation.min_links", "segmentation.max_links"),
+)
+
+
+def check_setting(key: str, value, default):
+    """``value`` checked against the row of ``key`` and converted to the kind of ``default``.
+
+    Parameters
+    ----------
+    key : str
+        ``"stage.field"``.
+    value : float, int, bool or str
+        As given (the command line passes numbers as float, text as str).
+    default
+        The field's default value (its kind: bool, int, float or str).
+
+    Returns
+    -------
+    bool, int, float or str
+
+    Raises
+    ------
+    InputError
+        No row for the field, a value of the wrong kind, not finite, or out of range; the
+        message gives the valid range.
+    """
+    row = RANGES.get(key)
+    if row is None:
+        raise InputError(f"setting {key!r} cannot be set (it has no checked range in "
+                         "artrecon.settings.RANGES)")
+    if isinstance(row, Choice):
+        if not isinstance(value, str) or value not in row.options:
+            raise InputError(f"setting {key}={_num(value)}: {key} takes {row.text()}, default "
+                             f"{default!r}")
+        return value
+    if isinstance(value, str):
+        low = value.strip().lower()
+        if isinstance(default, bool) and low in ("true", "false"):
+            value = low == "true"
+        else:
+            try:
+                value = float(value)
+            except ValueError:
+                raise InputError(f"setting {key}={value}: not a number; {key} takes "
+                                 f"{row.text()}, default {_num(default)}") from None
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"setting {key}={value!r}: not a number; {key} takes {row.text()}, "
+                         f"default {_num(default)}") from None
+    if not math.isfinite(number):
+        raise InputError(f"setting {key}={_num(value)}: not a finite number; {key} takes "
+                         f"{row.text()}, default {_num(default)}")
+    if isinstance(default, bool):
+        if number not in (0.0, 1.0):
+            raise InputError(f"setting {key}={_num(value)}: not a boolean; {key} takes 0 (off) "
+                             f"or 1 (on), default {int(default)}")
+        return bool(number)
+    if isinstance(default, int):
+        if number != int(number):
+            raise InputError(f"setting {key}={_num(value)}: not a whole number; {key} takes "
+                             f"{row.text()}, default {_num(default)}")
+        number = int(number)
+    if not row.holds(number):
+        raise InputError(f"setting {key}={_num(value)}: out of range; {key} takes "
+                         f"{row.text()}, default {_num(default)}")
+    return number if isinstance(default, int) else float(number)
+
+
+def apply_settings(config, settings: dict):
+    """A copy of a config of stage configs (:class:`artrecon.reconstruct.ReconstructConfig`)
+    with ``settings`` (``{"stage.field": value}``) applied, each checked (:func:`check_setting`);
+    InputError for an unknown stage or field, a bad value, or a pair of :data:`ORDERED` fields
+    in the wrong order."""
+    stages = {f.name: getattr(config, f.name) for f in fields(config)}
+    changed: dict[str, dict] = {}
+    for key, value in settings.items():
+        stage, _, name = key.partition(".")
+        if stage not in stages or not name:
+            raise InputError(f"setting {key!r}: name it stage.field with a stage of "
+                             f"{sorted(stages)} (e.g. dense.downsample)")
+        sub = stages[stage]
+        known = {f.name for f in fields(sub)}
+        if name not in known:
+            raise InputError(f"setting {key!r}: {type(sub).__name__} has no field {name!r}; its "
+                             f"fields are {sorted(known)}")
+        changed.setdefault(stage, {})[name] = check_setting(key, value, getattr(sub, name))
+    try:
+        out = replace(config, **{stage: replace(stages[stage], **kw)
+                                 for stage, kw in changed.items()})
+    except ValueError as exc:  # a stage's own check (e.g. DenseConfig.downsample >= 1)
+        raise InputError(f"settings {settings}: {exc}") from exc
+    for first, second in ORDERED:
+        a = getattr(getattr(out, first.split(".")[0]), first.split(".")[1])
+        b = getattr(getattr(out, second.split(".")[0]), second.split(".")[1])
+        if a > b and (first in settings or second in settings):
+            raise InputError(f"settings: {first} ({_num(a)}) may not exceed {second} "
+                             f"({_num(b)}); change one of them")
+    return out
