@@ -44,6 +44,7 @@ from PIL import Image
 from tqdm import tqdm
 
 from artrecon.geometry import rotation_angle
+from artrecon.io import check_output_dir, check_output_path
 from sim import render, robot, views
 from sim.camera import convert_camera_pose, mujoco_camera_intrinsics
 
@@ -317,7 +318,20 @@ class _Arm:
 
 
 # ------------------------------------------------------------------------------------ capture
-def _check_out_dir(out_dir: Path, overwrite: bool) -> Path:
+def _scene_inputs(scene) -> list[Path]:
+    """The scene file and every file it references (never to be written over), [] when the
+    scene is not found (loading it says why)."""
+    from sim.cache import scene_files
+    from sim.scene import Scene, SceneError, scene_path
+
+    try:
+        path = scene.path if isinstance(scene, Scene) else scene_path(scene)
+    except (SceneError, TypeError):
+        return []
+    return [path] + [f for f in scene_files(path) if f != path.resolve()]
+
+
+def _check_out_dir(out_dir: Path, overwrite: bool, inputs=()) -> Path:
     out_dir = Path(out_dir).absolute()
     parent = out_dir.parent
     if not parent.is_dir():
@@ -326,10 +340,14 @@ def _check_out_dir(out_dir: Path, overwrite: bool) -> Path:
     if not os.access(parent, os.W_OK | os.X_OK):
         raise PermissionError(f"cannot write the image set to {out_dir}: folder {parent} is not "
                               "writable; choose another --out")
+    # not on, around or inside the scene's files; a file is never replaced by the image set,
+    # and --overwrite replaces only an image set (a folder holding cameras.json)
+    check_output_path(out_dir, inputs, example=f"runs/{out_dir.name}")
     if out_dir.exists() and not overwrite:
-        raise FileExistsError(f"{out_dir} already exists; remove it, choose another --out, or pass "
-                              "--overwrite")
-    return out_dir
+        kind = "folder" if out_dir.is_dir() else "file"
+        raise FileExistsError(f"{out_dir} already exists (a {kind}); remove it, choose another "
+                              "--out, or pass --overwrite")
+    return check_output_dir(out_dir, overwrite=overwrite, marker="cameras.json")
 
 
 def capture(scene, config: str, out_dir, *, n_views: int = 36,
@@ -376,7 +394,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
                                     top_elevations_deg=tuple(top_elevations_deg), fill=fill,
                                     fill_range=tuple(fill_range),
                                     max_elevation_shift_deg=max_elevation_shift_deg, seed=seed)
-    out_dir = _check_out_dir(Path(out_dir), overwrite)
+    out_dir = _check_out_dir(Path(out_dir), overwrite, _scene_inputs(scene))
     t_start = time.perf_counter()
     # the scene with its object joints held still while the arm works (sim.scene joint holds)
     sc = _load(scene).with_joint_holds()
@@ -587,6 +605,9 @@ def main(argv=None) -> int:
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
+    problem = views.views_problem(args.views)
+    if problem:
+        p.error(problem)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
         res = capture(args.scene, args.config, args.out, n_views=args.views, seed=args.seed,
@@ -595,6 +616,8 @@ def main(argv=None) -> int:
     except (ValueError, FileNotFoundError, FileExistsError, PermissionError,
             CaptureError) as e:
         p.exit(2, f"error: {e}\n")
+    except KeyboardInterrupt:
+        p.exit(130, f"interrupted; {args.out} is as it was (run again to capture)\n")
     out = sys.stdout
     out.write(f"{res.n_captured}/{res.n_planned} views captured into {res.out_dir}\n")
     for u in res.unreachable:

@@ -70,6 +70,21 @@ FILL_STEP = 0.05
 ELEVATION_STEP_DEG = 2.5
 
 
+#: Fewest views per full ring a capture may ask for (``--views`` of sim.capture and sim.evaluate,
+#: :attr:`ViewPlanConfig.views_per_ring`): with fewer, neighbours on a ring are more than 90
+#: degrees apart and no two views of the object share enough of it to be matched.
+MIN_VIEWS = 4
+
+
+def views_problem(n_views: int, flag: str = "--views") -> str | None:
+    """The message for a views-per-ring value below :data:`MIN_VIEWS` (None when it is fine):
+    one wording for every command."""
+    if n_views >= MIN_VIEWS:
+        return None
+    return (f"{flag} must be at least {MIN_VIEWS} (views per full ring; 36 keeps neighbours 10 "
+            f"degrees apart), got {n_views}")
+
+
 @dataclass(frozen=True)
 class ViewPlanConfig:
     """How the views are laid out."""
@@ -94,8 +109,9 @@ class ViewPlanConfig:
     """seeds the azimuth of each ring's first view and the IK restarts"""
 
     def __post_init__(self):
-        if self.views_per_ring < 3:
-            raise ValueError(f"views_per_ring must be at least 3, got {self.views_per_ring}")
+        problem = views_problem(self.views_per_ring, "views_per_ring (--views)")
+        if problem:
+            raise ValueError(problem)
         lo, hi = self.fill_range
         if not 0.05 <= lo <= hi <= 1.0:
             raise ValueError(f"fill_range must satisfy 0.05 <= low <= high <= 1, got "

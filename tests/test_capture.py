@@ -194,7 +194,7 @@ def test_bad_arguments_are_clear_errors(tmp_path, pliers_set):
         C.capture("pliers", "a", blocker / "x", **SMALL)
     with pytest.raises(FileExistsError, match="--overwrite"):
         C.capture("pliers", "a", pliers_set[1], **SMALL)
-    with pytest.raises(ValueError, match="at least 3"):
+    with pytest.raises(ValueError, match="at least 4"):
         C.capture("pliers", "a", tmp_path / "x", **{**SMALL, "n_views": 2})
     with pytest.raises(C.CaptureError, match="need 8"):
         C.capture("pliers", "a", tmp_path / "x", **{**SMALL, "n_views": 5})

@@ -9,11 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
+from artrecon.errors import InputError
 from sim import perturb
 from sim.evaluate import report
-from sim.evaluate.config import MIN_VIEWS, POSE_SOURCES, EvalConfig
+from sim.evaluate.checks import check_run
+from sim.evaluate.config import POSE_SOURCES, EvalConfig
 from sim.evaluate.runner import run
 from sim.scene import Scene, SceneError, list_scenes, load_scene, physics_warnings
+from sim.views import views_problem
 
 #: Simulated time stepped per scene to look for MuJoCo warnings (the Menagerie check).
 CHECK_SECONDS = 1.0
@@ -126,12 +129,17 @@ def main(argv: list[str] | None = None) -> int:
     names = args.scenes or list_scenes()
     if args.validate_only:
         return validate(names)
-    if args.views < MIN_VIEWS:
-        parser_.error(f"--views must be at least {MIN_VIEWS}, got {args.views}")
+    if views_problem(args.views):
+        parser_.error(views_problem(args.views))
     try:
         ev = config_from_args(args)
     except ValueError as err:
         parser_.error(str(err))
+    try:  # before any capture: scenes that load and move, an --out off the scenes' files
+        check_run(names, args.out)
+    except (SceneError, InputError) as err:
+        print(f"python -m sim.evaluate: error: {err}", file=sys.stderr)
+        return 2
     try:
         results = run(names, ev, args.out, argv)
     except KeyboardInterrupt:

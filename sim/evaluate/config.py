@@ -5,11 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from sim import perturb
+from sim.views import MIN_VIEWS  # fewest views per full ring a run may ask for (the capture's)
 
 #: Where the cameras can come from (:attr:`EvalConfig.poses`).
 POSE_SOURCES = ("fk", "images")
-#: Fewest views per full ring a run may ask for.
-MIN_VIEWS = 4
+__all__ = ["MIN_VIEWS", "POSE_SOURCES", "STAGES", "EvalConfig", "StageError"]
 
 #: Stage names of ``timings_s``, in pipeline order.
 STAGES = ("capture_a", "capture_b", "sfm", "dense", "matching", "segmentation_joints",
