@@ -1,7 +1,8 @@
 """Command line: ``artrecon reconstruct DIR_A DIR_B --out DIR`` and
 ``artrecon export MODEL --format mjcf|urdf|glb|ply --out PATH``.
 
-Exit status 0 on success, 2 on bad input, 1 when a stage fails (also when the evidence for a joint
+Exit status 0 on success, 2 on bad input (also when nothing moved between the two image sets:
+artrecon.errors.NoMotionError), 1 when a stage fails (also when the evidence for a joint
 is too weak: artrecon.errors.WeakEvidenceError), 130 when interrupted; the message says what to
 try, without a traceback.
 """
@@ -12,7 +13,7 @@ import argparse
 import logging
 import sys
 
-from artrecon.errors import ArtreconError, InputError
+from artrecon.errors import ArtreconError, InputError, NoMotionError
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -85,7 +86,7 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
                             poses=True if args.use_poses else None, out_dir=args.out,
                             seed=args.seed, config=config, overwrite=args.overwrite,
                             progress=not args.quiet)
-    except InputError as exc:
+    except (InputError, NoMotionError) as exc:  # NoMotionError: A and B are one configuration
         print(f"artrecon: error: {exc}", file=sys.stderr)
         return 2
     except ArtreconError as exc:
@@ -99,6 +100,11 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 130
     print(f"wrote {args.out}: {len(model.links)} links, {len(model.joints)} joints")
+    cams = model.metadata.get("intrinsics") or {}
+    if any(c.get("source") not in (None, "given") for c in cams.values()):
+        print("  focal length " + ", ".join(
+            f"{k.upper()} {c['focal_px']:.1f} px ({c['source']})" for k, c in sorted(cams.items())
+            if "focal_px" in c))
     for j in model.joints:
         unit = "rad" if j.type == "revolute" else "model units"
         print(f"  {j.name}: {j.type}, axis {j.axis_direction.round(4).tolist()} through "

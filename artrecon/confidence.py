@@ -446,6 +446,82 @@ def explain_segmentation_failure(exc: Exception, points_a, points_b, seg_config,
         f"(segmentation: {exc})")
 
 
+#: Fewest background (room) matches that show the room's motion between A and B for
+#: :func:`check_motion` (as many as artrecon.reconstruct needs to find the base).
+MIN_ROOM_MATCHES = 20
+
+
+def check_motion(points_a, points_b, background_a, background_b, seg_config,
+                 seed: int = 0) -> None:
+    """Say first and plainly when nothing moved between A and B, or when the whole object moved
+    as one rigid body: before segmentation, whose failure would name other causes.
+
+    The object's matches are fitted by one similarity (the largest link segmentation would find
+    alone). When it leaves fewer matches than a link needs (``min_link_size``), no second link can
+    be found: the object moved as one body, if at all. The room does not move; its matches
+    (``background_a``, ``background_b``) give the similarity of A's frame to B's. When the two
+    similarities move the object's points alike (within the segmentation's inlier distance and
+    under ``tolerances.REVOLUTE_MIN_ANGLE``) nothing moved; otherwise the object moved against the
+    room as one body. Without enough room matches nothing is concluded here.
+
+    Parameters
+    ----------
+    points_a, points_b : (n, 3) float
+        The object's matches.
+    background_a, background_b : (m, 3) float
+        The room's matches.
+    seg_config : artrecon.segment.SegmentationConfig
+    seed : int
+
+    Raises
+    ------
+    NoMotionError
+        Nothing moved (the same configuration photographed twice).
+    SingleBodyError
+        The object moved as one rigid body against the room.
+    """
+    from dataclasses import replace
+
+    from artrecon.errors import NoMotionError, SingleBodyError
+    from artrecon.segment import min_link_size, segment_links
+
+    n = len(points_a)
+    if n < 3 or len(background_a) < MIN_ROOM_MATCHES:
+        return
+    one = replace(seg_config, min_links=1, max_links=1)
+    try:
+        obj = segment_links(points_a, points_b, one, seed=seed)
+        room = segment_links(background_a, background_b, one, seed=seed)
+    except DegenerateError:
+        return
+    if obj.n_links == 0 or room.n_links == 0:
+        return
+    left, least = n - int(obj.sizes[0]), min_link_size(seg_config, n)
+    if left >= least:
+        return  # a second link may be there: segmentation decides
+    T_obj, T_room = obj.transforms[0], room.transforms[0]
+    gap = float(np.median(np.linalg.norm(T_room.apply(points_a) - T_obj.apply(points_a),
+                                         axis=1)))
+    turn = rotation_angle(T_obj.rotation.T @ T_room.rotation)
+    reach = seg_config.inlier_threshold * obj.scene_size_b
+    fits = (f"all but {left} of the {n} matches on the object fit one rigid motion (a moving part "
+            f"needs at least {least} matches of its own)")
+    if gap <= reach and turn < tol.REVOLUTE_MIN_ANGLE:
+        raise NoMotionError(
+            f"nothing moved between A and B: {fits}, and it is the motion of the room "
+            f"({room.sizes[0]} background matches; the two differ by {np.degrees(turn):.2f} deg "
+            f"and {100 * gap / obj.scene_size_b:.2f}% of the object's size at the object). The "
+            "two image sets show the object in the same configuration. Photograph configuration "
+            "B after moving a joint of the object (open the lid, pull the drawer), and pass "
+            "that folder as B")
+    raise SingleBodyError(
+        f"the whole object moved as one rigid body between A and B, and no joint moved: {fits}, "
+        f"and that motion differs from the room's by {np.degrees(turn):.1f} deg and "
+        f"{100 * gap / obj.scene_size_b:.1f}% of the object's size. Move a joint of the object "
+        "(not the whole object) between the two image sets; if a part did move, photograph it "
+        "from more views so that it gets matches of its own")
+
+
 # --- registration ---------------------------------------------------------------------------------
 
 

@@ -101,6 +101,29 @@ def inputs_digest(image_set: ImageSet, intrinsics: Intrinsics | None, poses, set
     return h.hexdigest()
 
 
+#: Given intrinsics whose focal lengths differ from a capture's cameras.json by more than this
+#: fraction are named as the cause when the SfM cameras disagree with the capture's poses.
+INTRINSICS_MISMATCH = 0.02
+
+
+def _layout_cause(intrinsics: Intrinsics | None, reference: Intrinsics) -> str:
+    """The likely cause of SfM cameras that disagree with a capture's poses, for the message:
+    intrinsics (held fixed in SfM) other than the capture's own, else a folded camera ring."""
+    if intrinsics is not None:
+        f_given = np.array([intrinsics.K[0, 0], intrinsics.K[1, 1]])
+        f_ref = np.array([reference.K[0, 0], reference.K[1, 1]])
+        ratio = f_given / f_ref
+        if np.max(np.abs(ratio - 1.0)) > INTRINSICS_MISMATCH:
+            return (f". Likely cause: the intrinsics. The given focal lengths (fx, fy = "
+                    f"{f_given[0]:.1f}, {f_given[1]:.1f} px) are {ratio.mean():.2f} x those of "
+                    f"the camera file ({f_ref[0]:.1f}, {f_ref[1]:.1f} px); SfM holds given "
+                    "intrinsics fixed, so wrong ones bend the cameras' layout. Pass the right "
+                    "intrinsics (--intrinsics fx,fy,cx,cy in pixels of these images), or leave "
+                    "--intrinsics out: the capture's cameras.json then supplies them")
+    return ("; a folded or broken camera ring: use the poses (--use-poses) or more overlapping "
+            "views")
+
+
 def reconstruct_configuration(image_set: ImageSet, out_dir: str | Path,
                               intrinsics: Intrinsics | None = None, poses=None, *,
                               sfm_config: SfMConfig | None = None,
@@ -159,7 +182,7 @@ def reconstruct_configuration(image_set: ImageSet, out_dir: str | Path,
     sfm = run_sfm(image_set, out_dir, intrinsics, poses, sfm_config, seed, progress)
     layout = None
     if poses is None and image_set.cameras_file is not None:
-        reference = load_cameras_json(image_set.cameras_file)[1]
+        reference_intrinsics, reference = load_cameras_json(image_set.cameras_file)
         if len(reference) >= 3:
             layout = layout_error(sfm, reference)
             log.info("configuration %s: SfM cameras vs cameras.json poses: %.2f%% of their "
@@ -167,9 +190,8 @@ def reconstruct_configuration(image_set: ImageSet, out_dir: str | Path,
             if layout > sfm_config.max_layout_error:
                 raise ReconstructionError(
                     f"configuration {which}: the SfM cameras disagree with the poses in "
-                    f"{image_set.cameras_file} by {100 * layout:.1f}% of their spread (a folded "
-                    "or broken camera ring); use the poses (--use-poses) or more overlapping "
-                    "views")
+                    f"{image_set.cameras_file} by {100 * layout:.1f}% of their spread"
+                    + _layout_cause(intrinsics, reference_intrinsics))
     timings["sfm"] = time.perf_counter() - t
     t = time.perf_counter()
     dense = dense_points(sfm, dense_config)

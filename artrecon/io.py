@@ -24,7 +24,8 @@ import logging
 import os
 import shutil
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from glob import escape as glob_escape
 from pathlib import Path
 
 import cv2
@@ -38,6 +39,19 @@ log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 #: Fewest images SfM can work with at all; a ring around an object wants 20 or more.
 MIN_IMAGES = 5
+#: Width (pixels) of the grey thumbnails compared to find near-identical images. At 64 px each
+#: thumbnail pixel averages a 10 x 10 block of a 640 x 480 image: re-encoding noise (JPEG at
+#: quality 90: under 2 grey levels) averages out, while a part that moves by a few pixels in the
+#: image still changes the thumbnail pixels along its edges by tens of levels.
+THUMBNAIL_WIDTH = 64
+#: Two images are near-identical when no thumbnail pixel differs by more than this many grey
+#: levels (of 255). The test is strict on purpose (the largest difference, not a mean): it only
+#: decides whether the user is told at once that nothing moved; sets that pass it still meet the
+#: later, match-based check (artrecon.confidence.check_motion).
+NEAR_IDENTICAL_LEVELS = 6.0
+#: B is "A again" when at least this share of its images has a near-identical image in A (or
+#: the other way round).
+NEAR_IDENTICAL_SHARE = 0.9
 
 
 @dataclass(frozen=True)
@@ -59,6 +73,9 @@ class ImageSet:
     digests : tuple of str
         SHA-1 of each image file's bytes, in the order of ``names`` (to tell identical image sets
         apart from merely similar ones).
+    thumbnails : tuple of (h, THUMBNAIL_WIDTH) float32
+        Each image in grey, shrunk by pixel-area averaging (to find near-identical images:
+        re-encoded copies, the same view photographed again).
     """
 
     root: Path
@@ -67,6 +84,7 @@ class ImageSet:
     size: tuple[int, int]
     cameras_file: Path | None
     digests: tuple[str, ...] = ()
+    thumbnails: tuple = field(default=(), compare=False, repr=False)
 
 
 @dataclass(frozen=True)
@@ -88,6 +106,9 @@ class Intrinsics:
         K = np.asarray(self.K, dtype=float)
         if K.shape != (3, 3):
             raise InputError(f"intrinsics K: expected shape (3, 3), got {K.shape}")
+        if not np.all(np.isfinite(K)):
+            raise InputError(f"intrinsics K: every entry must be a finite number, got "
+                             f"{K.tolist()}")
         if K[0, 0] <= 0 or K[1, 1] <= 0:
             raise InputError(f"intrinsics K: focal lengths must be positive, got {K[0, 0]}, "
                              f"{K[1, 1]}")
@@ -138,7 +159,7 @@ def load_image_folder(path: str | Path, min_images: int = MIN_IMAGES) -> ImageSe
                          f"at least {min_images} (a ring of 20-40 overlapping views works well)")
     size = None
     first = None
-    digests = []
+    digests, thumbnails = [], []
     for name in names:
         try:
             data = (image_dir / name).read_bytes()
@@ -150,6 +171,7 @@ def load_image_folder(path: str | Path, min_images: int = MIN_IMAGES) -> ImageSe
         if img is None:
             raise InputError(f"cannot read image {image_dir / name}: the file is corrupt or not an "
                              "image; remove or replace it")
+        thumbnails.append(_thumbnail(img))
         this = (int(img.shape[1]), int(img.shape[0]))
         if size is None:
             size, first = this, name
@@ -159,7 +181,41 @@ def load_image_folder(path: str | Path, min_images: int = MIN_IMAGES) -> ImageSe
                              "resolution per image set")
     cameras = root / "cameras.json"
     return ImageSet(root, image_dir, names, size, cameras if cameras.is_file() else None,
-                    tuple(digests))
+                    tuple(digests), tuple(thumbnails))
+
+
+def _thumbnail(img: np.ndarray) -> np.ndarray:
+    """(h, THUMBNAIL_WIDTH) float32 grey thumbnail of an image (any channels and depth)."""
+    if img.dtype != np.uint8:  # 16-bit or float images: to 0-255
+        img = cv2.normalize(img.astype(np.float32), None, 0, 255, cv2.NORM_MINMAX)
+    if img.ndim == 3:
+        img = cv2.cvtColor(np.ascontiguousarray(img[:, :, :3]).astype(np.float32),
+                           cv2.COLOR_BGR2GRAY)
+    h = max(1, round(THUMBNAIL_WIDTH * img.shape[0] / img.shape[1]))
+    return cv2.resize(img.astype(np.float32), (THUMBNAIL_WIDTH, h), interpolation=cv2.INTER_AREA)
+
+
+def near_twins(set_a: ImageSet, set_b: ImageSet) -> list[tuple[str, str, float]]:
+    """For each image of B, its most similar image of A when the two are near-identical
+    (:data:`NEAR_IDENTICAL_LEVELS`).
+
+    Returns
+    -------
+    list of (name_b, name_a, levels)
+        ``levels``: the largest grey-level difference of their thumbnails.
+    """
+    if not set_a.thumbnails or not set_b.thumbnails:
+        return []
+    ta = np.stack(set_a.thumbnails)
+    out = []
+    for name, tb in zip(set_b.names, set_b.thumbnails, strict=True):
+        if tb.shape != ta.shape[1:]:
+            return []  # other image sizes: not copies
+        levels = np.abs(ta - tb[None]).reshape(len(ta), -1).max(axis=1)
+        k = int(np.argmin(levels))
+        if levels[k] <= NEAR_IDENTICAL_LEVELS:
+            out.append((name, set_a.names[k], float(levels[k])))
+    return out
 
 
 def check_distinct(set_a: ImageSet, set_b: ImageSet) -> None:
@@ -168,8 +224,9 @@ def check_distinct(set_a: ImageSet, set_b: ImageSet) -> None:
     Raises
     ------
     InputError
-        Both name the same folder, or every image of one set is byte-identical to an image of the
-        other.
+        Both name the same folder, every image of one set is byte-identical to an image of the
+        other, or nearly every image of one set looks the same as an image of the other
+        (:func:`near_twins`: re-encoded copies, the same views photographed again).
     """
     same_dir = set_a.image_dir.resolve() == set_b.image_dir.resolve()
     da, db = set(set_a.digests), set(set_b.digests)
@@ -180,6 +237,17 @@ def check_distinct(set_a: ImageSet, set_b: ImageSet) -> None:
         raise InputError(f"configuration A and B are the same images ({what}): the object did not "
                          "move between them. Photograph configuration B after moving a joint of "
                          "the object (open the lid, pull the drawer), and pass that folder as B")
+    for first, second in ((set_a, set_b), (set_b, set_a)):
+        twins = near_twins(first, second)
+        if twins and len(twins) >= NEAR_IDENTICAL_SHARE * len(second.names):
+            b, a, levels = max(twins, key=lambda t: t[2])
+            raise InputError(
+                f"nothing moved between A and B: {len(twins)} of the {len(second.names)} images "
+                f"of {second.image_dir} look the same as images of {first.image_dir} (e.g. {b} "
+                f"and {a}: no pixel differs by more than {levels:.0f} grey levels of 255 at "
+                f"{THUMBNAIL_WIDTH} px wide): the same object in the same configuration, from the "
+                "same views (or a re-encoded copy). Photograph configuration B after moving a "
+                "joint of the object (open the lid, pull the drawer), and pass that folder as B")
     shared = len(da & db)
     if shared:
         log.warning("%d image(s) of %s and %s are byte-identical; configuration B should show "
@@ -270,17 +338,14 @@ def check_output_path(out: str | Path, inputs, *, flag: str = "--out",
     """
     out = Path(out)
     out_r = out.resolve()
-    for inp in inputs:
-        inp = Path(inp)
-        inp_r = inp.resolve()
-        if out_r == inp_r:
-            problem = f"is the input {inp}"
-        elif inp_r.is_relative_to(out_r):
-            problem = f"contains the input {inp}"
-        elif out_r.is_relative_to(inp_r) and inp_r.is_dir():
-            problem = f"lies inside the input folder {inp}"
-        else:
-            continue
+    inputs = [(Path(p), Path(p).resolve()) for p in inputs]
+    # the most specific finding first: equal to an input, then around one, then inside one
+    problem = next((f"is the input {p}" for p, r in inputs if out_r == r), None)
+    problem = problem or next((f"contains the input {p}" for p, r in inputs
+                               if r.is_relative_to(out_r)), None)
+    problem = problem or next((f"lies inside the input folder {p}" for p, r in inputs
+                               if out_r.is_relative_to(r) and r.is_dir()), None)
+    if problem is not None:
         hint = f", e.g. {flag} {example}" if example is not None else ""
         raise InputError(f"{flag} {out} {problem}: writing the result there would replace or "
                          f"change an input, so nothing was done. Choose a path outside the "
@@ -385,6 +450,23 @@ def load_cameras_json(path: str | Path) -> tuple[Intrinsics, dict[str, np.ndarra
         data = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
         raise InputError(f"cannot read camera file {path}: {exc}") from exc
+    try:
+        return _parse_cameras(data, path)
+    except InputError as exc:
+        if str(path) in str(exc):
+            raise
+        raise InputError(f"camera file {path}: {exc}") from exc
+    except (TypeError, ValueError, AttributeError, KeyError, IndexError) as exc:
+        raise InputError(f"camera file {path} is malformed ({type(exc).__name__}: {exc}); "
+                         "expected {\"K\": 3x3, \"width\": W, \"height\": H, \"images\": "
+                         "[{\"name\": ..., \"T_world_camera\": 4x4}, ...]} (see "
+                         "artrecon.io)") from exc
+
+
+def _parse_cameras(data, path: Path) -> tuple[Intrinsics, dict[str, np.ndarray]]:
+    if not isinstance(data, dict):
+        raise InputError(f"camera file {path} holds a JSON {type(data).__name__}; expected an "
+                         "object with keys 'K' and 'images'")
     if "K" not in data or "images" not in data:
         raise InputError(f"camera file {path} needs keys 'K' and 'images', has {sorted(data)}")
     intr = parse_intrinsics(data["K"], (int(data["width"]), int(data["height"]))
@@ -397,10 +479,16 @@ def load_cameras_json(path: str | Path) -> tuple[Intrinsics, dict[str, np.ndarra
         name = item.get("name") or item.get("file")
         if name is not None and item.get("T_world_camera") is None:
             continue  # pose unknown for this image (e.g. a view the arm could not reach)
-        T = np.asarray(item.get("T_world_camera"), dtype=float)
+        try:
+            T = np.asarray(item.get("T_world_camera"), dtype=float)
+        except (TypeError, ValueError):
+            T = np.zeros(0)
         if name is None or T.shape != (4, 4):
             raise InputError(f"camera file {path}: entry {i} needs 'name' and a 4x4 "
                              f"'T_world_camera' (got shape {T.shape})")
+        if not np.all(np.isfinite(T)):
+            raise InputError(f"camera file {path}: entry {i} ({name}): 'T_world_camera' holds "
+                             "a value that is not a finite number; fix or remove the entry")
         poses[Path(name).name] = T
     return intr, poses
 
@@ -418,18 +506,35 @@ def umask() -> int:
     return mask
 
 
-def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
-    """Write ``data`` to ``path`` whole or not at all; returns the path."""
-    path = Path(path)
+def _temporary_beside(path: Path, data: bytes) -> Path:
+    """``data`` in a new hidden file ``.NAME.<pid>-<random>.tmp`` beside ``path`` (its folder
+    created), with the usual file mode; such files that a killed process left behind are
+    removed first."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    for old in path.parent.glob(f".{glob_escape(path.name)}.*.tmp"):
+        head = old.name[len(path.name) + 2:].split("-", 1)[0]
+        if head.isdigit() and not _alive(int(head)):
+            old.unlink(missing_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}-", suffix=".tmp",
+                               dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
-        os.chmod(tmp, 0o666 & ~umask())
-        os.replace(tmp, path)
+        os.chmod(tmp, 0o666 & ~umask())  # mkstemp makes 0600; give the usual mode
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
+        raise
+    return Path(tmp)
+
+
+def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` to ``path`` whole or not at all; returns the path."""
+    path = Path(path)
+    tmp = _temporary_beside(path, data)
+    try:
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
         raise
     return path
 
@@ -482,16 +587,7 @@ class StagedFiles:
     def write(self, path: str | os.PathLike, data: bytes) -> None:
         """Stage ``data`` for ``path`` (its folder is created now)."""
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(data)
-            os.chmod(tmp, 0o666 & ~umask())  # mkstemp makes 0600; give the usual mode
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-        self._pending.append((Path(tmp), path))
+        self._pending.append((_temporary_beside(path, data), path))
 
     def targets(self) -> list[Path]:
         """The files staged so far, in the order they will be put in place."""

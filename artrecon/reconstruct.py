@@ -44,7 +44,12 @@ import numpy as np
 
 from artrecon import __version__
 from artrecon.assign import AssignConfig, assign_dense_to_links, views_from_sfm
-from artrecon.confidence import ConfidenceConfig, assess_joints, explain_segmentation_failure
+from artrecon.confidence import (
+    ConfidenceConfig,
+    assess_joints,
+    check_motion,
+    explain_segmentation_failure,
+)
 from artrecon.configuration import Configuration, load_configuration, reconstruct_configuration
 from artrecon.dense import DenseConfig, RegionConfig
 from artrecon.errors import (
@@ -83,7 +88,7 @@ from artrecon.segment import (
     segment_links,
 )
 from artrecon.settings import apply_settings
-from artrecon.sfm import SfMConfig
+from artrecon.sfm import SfMConfig, camera_summary
 
 log = logging.getLogger(__name__)
 
@@ -483,6 +488,8 @@ def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndar
     """
     timings: dict[str, float] = {}
     t = time.perf_counter()
+    # nothing moved, or the whole object did: said first and plainly (NoMotionError, ...)
+    check_motion(points_a, points_b, background_a, background_b, config.segmentation, seed)
     try:
         seg = segment_links(points_a, points_b, config.segmentation, seed=seed)
         seg = merge_equivalent_links(points_a, points_b, seg)
@@ -760,6 +767,9 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
                                if s.pose_agreement is not None} or None,
             "model_frame": "world frame of configuration A's camera poses (metres)" if metric
             else "configuration A's SfM frame (arbitrary scale)",
+            # the focal length SfM used: given, from EXIF, or self-calibrated (and refined)
+            "intrinsics": {k: camera_summary(s.reconstruction, given=intr is not None)
+                           for (k, s), intr in zip(sfms.items(), (intr_a, intr_b), strict=True)},
             "registered_images": {k: s.reconstruction.num_reg_images() for k, s in sfms.items()},
             "num_images": {k: s.num_images for k, s in sfms.items()},
             "sparse_points": {k: s.reconstruction.num_points3D() for k, s in sfms.items()},

@@ -271,6 +271,36 @@ def extract(image_set: ImageSet, database_path: Path, intrinsics: Intrinsics | N
         _opencv_features(image_set, database_path, config)
 
 
+def camera_summary(reconstruction, given: bool) -> dict:
+    """The intrinsics SfM worked with, for the model's metadata.
+
+    Parameters
+    ----------
+    reconstruction : pycolmap.Reconstruction
+    given : bool
+        Whether the intrinsics were given (a capture's cameras.json or ``--intrinsics``).
+
+    Returns
+    -------
+    dict
+        ``source``: "given" (held fixed), "EXIF" (the photos' focal length as the starting value,
+        refined by bundle adjustment) or "self-calibrated" (no focal length known: COLMAP starts
+        from 1.2 x the longer image side, and bundle adjustment refines the one camera all
+        images share); ``model`` (COLMAP camera model), ``focal_px`` (mean focal length, pixels),
+        ``principal_point`` (OpenCV pixels), ``params`` (COLMAP's), ``cameras`` (how many).
+    """
+    cams = list(reconstruction.cameras.values())
+    if not cams:
+        return {"source": "given" if given else "unknown", "cameras": 0}
+    cam = cams[0]
+    source = ("given" if given else "EXIF" if cam.has_prior_focal_length
+              else "self-calibrated")
+    K = np.asarray(cam.calibration_matrix(), dtype=float)
+    return {"source": source, "model": cam.model.name, "focal_px": float(cam.mean_focal_length()),
+            "principal_point": [float(K[0, 2] - 0.5), float(K[1, 2] - 0.5)],
+            "params": [float(v) for v in cam.params], "cameras": len(cams)}
+
+
 def read_features(database_path: Path) -> dict[str, tuple[int, np.ndarray, np.ndarray]]:
     """Per image name: (image_id, keypoints (n, 2) xy in OpenCV pixels, descriptors (n, 128) u8)."""
     out = {}

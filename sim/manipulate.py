@@ -987,6 +987,9 @@ def main(argv=None) -> int:
     except (ManipulationError, ValueError, OSError) as err:
         log.error("%s", err)
         return 2
+    except KeyboardInterrupt:
+        sys.stderr.write(f"interrupted; nothing was written to {args.out}\n")
+        return 130
     args.out.mkdir(parents=True, exist_ok=True)
     out = res.to_dict()
     out["axis_source_note"] = ("ground-truth axis from the scene file" if args.model is None

@@ -8,6 +8,7 @@ configurations of one object, and interrupted runs.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -20,6 +21,7 @@ import cv2
 import numpy as np
 import pytest
 import render_fixture as rf
+from badinput import refused, write_images
 
 from artrecon import io
 from artrecon.cli import main
@@ -30,12 +32,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def _write_images(folder: Path, n: int = 6, size=(64, 48), seed: int = 0) -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(seed)
-    for i in range(n):
-        cv2.imwrite(str(folder / f"img_{i:02d}.png"),
-                    (rng.random((size[1], size[0], 3)) * 255).astype(np.uint8))
-    return folder
+    return write_images(folder, n, size, seed)
 
 
 def _cli(argv, capsys) -> tuple[int, str]:
@@ -43,57 +40,326 @@ def _cli(argv, capsys) -> tuple[int, str]:
     return code, capsys.readouterr().err
 
 
-# --- the command line -------------------------------------------------------------------------
+# --- the reconstruct command: one table of refused inputs -------------------------------------
+# Each case builds its inputs in a fresh folder and returns the command's extra arguments and
+# what the message must say; every case must exit 2 with "artrecon: error: ", write nothing
+# and change nothing in that folder (badinput.refused hashes it before and after).
+
+W, H = 64, 48
+K_SMALL = [[50.0, 0, (W - 1) / 2], [0, 50.0, (H - 1) / 2], [0, 0, 1]]
 
 
-@pytest.mark.parametrize("case, needle", [
-    ("empty", "no images"),
-    ("unreadable", "cannot read image"),
-    ("mixed sizes", "differ in size"),
-    ("a file", "is a file, not a folder"),
+def _capture(folder: Path, seed: int, cameras=None) -> Path:
+    """A capture folder: images/ and cameras.json (``cameras`` replaces its content)."""
+    write_images(folder / "images", seed=seed)
+    names = sorted(p.name for p in (folder / "images").iterdir())
+    data = {"K": K_SMALL, "width": W, "height": H,
+            "images": [{"name": n, "T_world_camera": np.eye(4).tolist()} for n in names]}
+    text = cameras if isinstance(cameras, str) else json.dumps(cameras or data)
+    (folder / "cameras.json").write_text(text)
+    return folder
+
+
+def _pair(t: Path):
+    return write_images(t / "a", seed=1), write_images(t / "b", seed=2)
+
+
+def _args(a, b, out, *extra):
+    return ["reconstruct", str(a), str(b), "--out", str(out), *extra]
+
+
+CASES = {}
+
+
+def case(*needles):
+    def register(fn):
+        CASES[fn.__name__] = (fn, needles)
+        return fn
+    return register
+
+
+# image folders
+@case("image folder", "does not exist")
+def folder_missing(t):
+    return _args(t / "nope", write_images(t / "b"), t / "o")
+
+
+@case("is a file, not a folder")
+def folder_is_a_file(t):
+    cv2.imwrite(str(t / "photo.png"), np.zeros((30, 40, 3), np.uint8))
+    return _args(write_images(t / "a"), t / "photo.png", t / "o")
+
+
+@case("no images")
+def folder_empty(t):
+    (t / "b").mkdir()
+    return _args(write_images(t / "a"), t / "b", t / "o")
+
+
+@case("only 3 image(s)", "at least 5")
+def folder_too_few(t):
+    return _args(write_images(t / "a"), write_images(t / "b", n=3, seed=2), t / "o")
+
+
+@case("cannot read image", "img_02.png", "corrupt")
+def image_corrupt(t):
+    a, b = _pair(t)
+    (b / "img_02.png").write_bytes(b"\x89PNG\r\n\x1a\n truncated")
+    return _args(a, b, t / "o")
+
+
+@case("cannot read image", "img_03.png")
+def image_empty_file(t):
+    a, b = _pair(t)
+    (b / "img_03.png").write_bytes(b"")
+    return _args(a, b, t / "o")
+
+
+@case("differ in size", "img_04.png", "64x48")
+def images_mixed_sizes(t):
+    a, b = _pair(t)
+    cv2.imwrite(str(b / "img_04.png"), np.zeros((30, 40, 3), np.uint8))
+    return _args(a, b, t / "o")
+
+
+@case("did not move", "both name the folder")
+def same_folder_twice(t):
+    a = write_images(t / "a")
+    return _args(a, a, t / "o")
+
+
+@case("same images", "byte for byte", "did not move")
+def byte_copy_of_a(t):
+    a = write_images(t / "a")
+    (t / "b").mkdir()
+    for i, f in enumerate(sorted(a.iterdir())):
+        shutil.copy(f, t / "b" / f"copy_{i}.png")
+    return _args(a, t / "b", t / "o")
+
+
+@case("nothing moved between A and B", "re-encoded copy", "move")
+def reencoded_copy_of_a(t):
+    a = write_images(t / "a", size=(160, 120))
+    (t / "b").mkdir()
+    for f in sorted(a.iterdir()):  # the same photos as JPEG: other bytes, the same pictures
+        cv2.imwrite(str(t / "b" / f"{f.stem}.jpg"), cv2.imread(str(f)),
+                    [cv2.IMWRITE_JPEG_QUALITY, 90])
+    return _args(a, t / "b", t / "o")
+
+
+# camera files and intrinsics
+@case("fx,fy,cx,cy")
+def intrinsics_three_numbers(t):
+    return _args(*_pair(t), t / "o", "--intrinsics", "500,500,320")
+
+
+@case("focal lengths must be positive")
+def intrinsics_negative_focal(t):
+    return _args(*_pair(t), t / "o", "--intrinsics=-50,50,31.5,23.5")
+
+
+@case("finite number")
+def intrinsics_nan(t):
+    return _args(*_pair(t), t / "o", "--intrinsics", "nan,50,31.5,23.5")
+
+
+@case("cannot read intrinsics", "3x3 'K'")
+def intrinsics_file_without_k(t):
+    (t / "k.json").write_text('{"f": 50}')
+    return _args(*_pair(t), t / "o", "--intrinsics", str(t / "k.json"))
+
+
+@case("cannot read camera file", "cameras.json")
+def cameras_json_not_json(t):
+    return _args(_capture(t / "a", 1, cameras="{not json"), write_images(t / "b", seed=2),
+                 t / "o")
+
+
+@case("holds a JSON list", "'K' and 'images'")
+def cameras_json_a_list(t):
+    return _args(_capture(t / "a", 1, cameras="[1, 2]"), write_images(t / "b", seed=2), t / "o")
+
+
+@case("is malformed", "cameras.json")
+def cameras_json_ragged_k(t):
+    bad = {"K": [[50, 0], [0, 50, 23.5], [0, 0, 1]], "images": []}
+    return _args(_capture(t / "a", 1, cameras=bad), write_images(t / "b", seed=2), t / "o")
+
+
+@case("entry 0 needs 'name' and a 4x4 'T_world_camera'")
+def cameras_json_pose_3x3(t):
+    bad = {"K": K_SMALL, "images": [{"name": "img_00.png", "T_world_camera": np.eye(3).tolist()}]}
+    return _args(_capture(t / "a", 1, cameras=bad), write_images(t / "b", seed=2), t / "o",
+                 "--use-poses")
+
+
+@case("not a finite number", "img_00.png")
+def cameras_json_nan_pose(t):
+    T = np.eye(4).tolist()
+    T[0][3] = float("nan")
+    bad = {"K": K_SMALL, "images": [{"name": "img_00.png", "T_world_camera": T}]}
+    return _args(_capture(t / "a", 1, cameras=json.dumps(bad)), write_images(t / "b", seed=2),
+                 t / "o")
+
+
+@case("intrinsics are for 640x480 images", "64x48")
+def cameras_json_other_size(t):
+    other = {"K": K_SMALL, "width": 640, "height": 480, "images": []}
+    return _args(_capture(t / "a", 1, cameras=other), write_images(t / "b", seed=2), t / "o")
+
+
+@case("poses requested", "has no cameras.json")
+def use_poses_without_cameras_json(t):
+    return _args(*_pair(t), t / "o", "--use-poses")
+
+
+# settings
+@pytest.mark.parametrize("setting, needles", [
+    ("dense.downsample", ["expected STAGE.FIELD=VALUE"]),
+    ("dense.downsample=", ["expected STAGE.FIELD=VALUE"]),
+    ("dense.downsample=full", ["dense.downsample=full: not a number", "[1, 8]"]),
+    ("dense.nope=1", ["DenseConfig has no field 'nope'", "downsample"]),
+    ("nope.x=1", ["name it stage.field", "dense"]),
+    ("dense.downsample=0", ["out of range", "takes a value in [1, 8]", "default 2"]),
+    ("dense.downsample=1000", ["dense.downsample=1000: out of range", "[1, 8]"]),
+    ("dense.downsample=1.5", ["not a whole number", "[1, 8]"]),
+    ("segmentation.max_hypotheses=nan", ["not a finite number", "[1, 10000000]"]),
+    ("segmentation.max_hypotheses=inf", ["not a finite number", "[1, 10000000]"]),
+    ("segmentation.max_hypotheses=0", ["out of range", "[1, 10000000]", "default 5000"]),
+    ("joints.revolute_min_angle=-0.1", ["out of range", "(0, 1.5708]", "radians"]),
+    ("guided.enabled=2", ["not a boolean", "0 (off) or 1 (on)"]),
+    ("sfm.matching=everything", ["one of 'auto', 'exhaustive', 'sequential'"]),
 ])
-def test_cli_bad_image_folder_exits_2_with_message(tmp_path, capsys, case, needle):
-    good = _write_images(tmp_path / "good", seed=1)
-    bad = tmp_path / "bad"
-    if case == "empty":
-        bad.mkdir()
-    elif case == "unreadable":
-        _write_images(bad)
-        (bad / "img_02.png").write_bytes(b"\x89PNG\r\n\x1a\n truncated")
-    elif case == "mixed sizes":
-        _write_images(bad)
-        cv2.imwrite(str(bad / "img_04.png"), np.zeros((30, 40, 3), np.uint8))
-    else:
-        bad = tmp_path / "photo.png"
-        cv2.imwrite(str(bad), np.zeros((30, 40, 3), np.uint8))
-    code, err = _cli(["reconstruct", str(good), str(bad), "--out", str(tmp_path / "o")], capsys)
-    assert code == 2
-    assert err.startswith("artrecon: error: ") and needle in err
-    if case in ("unreadable", "mixed sizes"):
-        assert "img_02.png" in err or "img_04.png" in err  # names the image
-    assert not (tmp_path / "o").exists() and not list(tmp_path.glob(".o.tmp-*"))
+def test_bad_setting_is_refused_with_its_range(tmp_path, capsys, monkeypatch, setting, needles):
+    monkeypatch.chdir(tmp_path)
+    code, err = refused(main, _args(*_pair(tmp_path), tmp_path / "o", "--set", setting), capsys,
+                        tmp_path)
+    assert code == 2 and err.startswith("artrecon: error: "), err
+    assert all(n in err for n in needles), err
 
 
-def test_cli_bad_intrinsics_is_input_error(tmp_path, capsys):
-    a, b = _write_images(tmp_path / "a"), _write_images(tmp_path / "b", seed=1)
-    code, err = _cli(["reconstruct", str(a), str(b), "--out", str(tmp_path / "o"),
-                      "--intrinsics", "500,500,320"], capsys)
-    assert code == 2 and "fx,fy,cx,cy" in err
+def test_settings_out_of_order_are_refused(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    argv = _args(*_pair(tmp_path), tmp_path / "o", "--set", "segmentation.min_links=5",
+                 "--set", "segmentation.max_links=3")
+    code, err = refused(main, argv, capsys, tmp_path)
+    assert code == 2 and "segmentation.min_links (5) may not exceed segmentation.max_links (3)" \
+        in err
 
 
-@pytest.mark.parametrize("setting, needle", [
-    ("dense.downsample", "expected STAGE.FIELD=VALUE"),
-    ("dense.downsample=full", "dense.downsample=full: not a number"),
-    ("dense.nope=1", "DenseConfig has no field 'nope'"),
-    ("dense.downsample=0", "takes a value in [1, 8]"),
-    ("nope.x=1", "name it stage.field"),
-])
-def test_cli_bad_setting_is_input_error(tmp_path, capsys, setting, needle):
-    a, b = _write_images(tmp_path / "a"), _write_images(tmp_path / "b", seed=1)
-    code, err = _cli(["reconstruct", str(a), str(b), "--out", str(tmp_path / "o"),
-                      "--set", setting], capsys)
-    assert code == 2 and needle in err, err
-    assert not (tmp_path / "o").exists()
+# output folders
+@case("is the input", "nothing was done", "outside the inputs")
+def out_is_input_a(t):
+    a = _capture(t / "a", 1)
+    return _args(a, write_images(t / "b", seed=2), a, "--overwrite")
+
+
+@case("is the input", "images")
+def out_is_the_image_folder_of_a(t):
+    a = _capture(t / "a", 1)
+    return _args(a, write_images(t / "b", seed=2), a / "images", "--overwrite")
+
+
+@case("lies inside the input folder")
+def out_inside_b(t):
+    a, b = _pair(t)
+    return _args(a, b, b / "model")
+
+
+@case("contains the input")
+def out_contains_the_inputs(t):
+    a, b = _pair(t)
+    return _args(a, b, t, "--overwrite")
+
+
+@case("is the input")
+def out_is_a_link_to_a(t):
+    a, b = _pair(t)
+    (t / "link").symlink_to(a)
+    return _args(a, b, t / "link", "--overwrite")
+
+
+@case("is a file, not a folder", "never replaced")
+def out_is_a_file(t):
+    (t / "notes.txt").write_text("the user's notes")
+    return _args(*_pair(t), t / "notes.txt", "--overwrite")
+
+
+@case("output folder", "exists", "--overwrite")
+def out_exists(t):
+    (t / "o").mkdir()
+    (t / "o" / "model.json").write_text("{}")
+    return _args(*_pair(t), t / "o")
+
+
+@case("holds no model.json", "never other files")
+def out_overwrite_of_a_folder_that_is_no_result(t):
+    (t / "docs").mkdir()
+    (t / "docs" / "thesis.tex").write_text("years of work")
+    return _args(*_pair(t), t / "docs", "--overwrite")
+
+
+@case("nothing was written", "file")
+def out_under_a_file(t):
+    (t / "file").write_text("a file where the output's parent folder should be")
+    return _args(*_pair(t), t / "file" / "o")
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_reconstruct_refuses(tmp_path, capsys, monkeypatch, name):
+    """Exit 2, a message naming the problem (and what to do), nothing written, nothing changed
+    (every file under the test's folder hashed before and after; the working folder is there
+    too)."""
+    build, needles = CASES[name]
+    argv = build(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    code, err = refused(main, argv, capsys, tmp_path)
+    assert code == 2, (code, err)
+    assert err.startswith("artrecon: error: "), err
+    assert all(n in err for n in needles), f"{needles} not all in: {err}"
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root reads every file")
+def test_image_without_read_permission_is_named(tmp_path, capsys, monkeypatch):
+    a, b = _pair(tmp_path)
+    (b / "img_01.png").chmod(0)
+    monkeypatch.chdir(tmp_path)
+    code, err = refused(main, _args(a, b, tmp_path / "o"), capsys, tmp_path)
+    assert code == 2 and "cannot read image" in err and "img_01.png" in err
+
+
+def test_every_tunable_field_has_a_checked_range():
+    """Every int, float, bool or text field of every stage config has a row in
+    artrecon.settings.RANGES (so it can be set and is checked), every row names a field, and
+    every default lies in its range."""
+    from dataclasses import fields
+
+    from artrecon.reconstruct import ReconstructConfig
+    from artrecon.settings import RANGES, check_setting
+
+    config = ReconstructConfig()
+    tunable = {}
+    for f in fields(config):
+        for g in fields(getattr(config, f.name)):
+            value = getattr(getattr(config, f.name), g.name)
+            if isinstance(value, (bool, int, float, str)):
+                tunable[f"{f.name}.{g.name}"] = value
+    assert set(tunable) == set(RANGES), set(tunable) ^ set(RANGES)
+    for key, default in tunable.items():
+        assert check_setting(key, default, default) == default, key
+
+
+def test_settings_that_were_refused_or_crashed_before(tmp_path):
+    """joints.revolute_min_angle (a numpy float default) is settable; sfm.matching takes its
+    choices; with_settings converts and keeps the kind."""
+    from artrecon.reconstruct import ReconstructConfig, with_settings
+
+    c = with_settings(ReconstructConfig(), {"joints.revolute_min_angle": 0.1,
+                                            "sfm.matching": "exhaustive",
+                                            "dense.downsample": 1.0, "guided.enabled": 0.0})
+    assert c.joints.revolute_min_angle == 0.1 and c.sfm.matching == "exhaustive"
+    assert c.dense.downsample == 1 and isinstance(c.dense.downsample, int)
+    assert c.guided.enabled is False
 
 
 def test_cli_runs_as_a_program_without_traceback(tmp_path):
