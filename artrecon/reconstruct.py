@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from artrecon import __version__
+from artrecon import __version__, workers
 from artrecon.assign import AssignConfig, assign_dense_to_links, views_from_sfm
 from artrecon.confidence import (
     ConfidenceConfig,
@@ -703,9 +703,14 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     if jobs > 1:
         # B in a second (spawned) process while this one does A: the two are independent
         with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
-            future = pool.submit(_configuration_in_process, *args["b"], False)
-            confs["a"] = _configuration(*args["a"], progress)
-            future.result()
+            # the worker ignores Ctrl-C; this process stops it (one line, no worker traceback)
+            future = workers.submit(pool, _configuration_in_process, *args["b"], False)
+            try:
+                confs["a"] = _configuration(*args["a"], progress)
+                future.result()
+            except KeyboardInterrupt:
+                workers.stop(pool)
+                raise
         confs["b"] = load_configuration(folders["b"])
     else:
         for key in ("a", "b"):

@@ -10,6 +10,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from artrecon import workers
 from artrecon.io import read_json
 from sim import cache, perturb
 from sim.evaluate.config import EvalConfig, StageError
@@ -162,8 +163,9 @@ def configuration_chains(scene: Scene, ev: EvalConfig, cache_root: Path, scene_h
         from dataclasses import replace
 
         pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
-        future = pool.submit(configuration_chain, scene, "b", replace(ev, progress=False),
-                             cache_root, scene_hash, settings)
+        # the worker ignores Ctrl-C; this process stops it (one line, no worker traceback)
+        future = workers.submit(pool, configuration_chain, scene, "b",
+                                replace(ev, progress=False), cache_root, scene_hash, settings)
     try:
         for c in ("a", "b"):
             try:
@@ -172,6 +174,10 @@ def configuration_chains(scene: Scene, ev: EvalConfig, cache_root: Path, scene_h
                                                    settings))
             except Exception as err:
                 out[c] = err
+    except KeyboardInterrupt:
+        if pool is not None:
+            workers.stop(pool)
+        raise
     finally:
         if pool is not None:
             pool.shutdown(wait=True)

@@ -1,0 +1,158 @@
+"""Faults: a command killed (SIGKILL) or interrupted (Ctrl-C: SIGINT to its process group, as a
+terminal sends it) mid-run leaves the old result intact and no half-written file under a real
+name; Ctrl-C prints one line and exits 130; a rerun finishes. Run as subprocesses."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from badinput import REPO, tree
+from test_export import synthetic_model
+
+from artrecon import io
+
+
+def _start(argv: list[str]) -> subprocess.Popen:
+    """A command in its own process group (so a signal reaches it and its workers together)."""
+    return subprocess.Popen([sys.executable, "-m", *argv], cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, start_new_session=True)
+
+
+def _wait_for(found, proc: subprocess.Popen, timeout: float = 300.0, poll: float = 0.05):
+    """Poll ``found()`` until it returns something truthy (returned) while ``proc`` runs."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        hit = found()
+        if hit:
+            return hit
+        if proc.poll() is not None:
+            raise AssertionError(f"the command ended early ({proc.returncode}): "
+                                 f"{proc.stderr.read().decode()[-2000:]}")
+        time.sleep(poll)
+    raise AssertionError("timed out waiting for the command to get there")
+
+
+def _signal(proc: subprocess.Popen, sig) -> tuple[int, str]:
+    os.killpg(proc.pid, sig)
+    _, err = proc.communicate(timeout=300)
+    return proc.returncode, err.decode()
+
+
+def _lines(text: str) -> list[str]:
+    return [ln for ln in text.splitlines() if ln.strip()]
+
+
+def _visible(t: dict) -> dict:
+    """A tree snapshot without hidden entries (temporaries and work folders)."""
+    return {k: v for k, v in t.items() if not any(part.startswith(".")
+                                                  for part in Path(k).parts[-3:])}
+
+
+def test_work_folders_get_the_usual_mode(tmp_path):
+    """Output folders were published with mkdtemp's mode 0700."""
+    out = tmp_path / "out"
+    work = io.make_work_dir(out)
+    (work / "model.json").write_text("{}")
+    io.publish_dir(work, out)
+    assert out.stat().st_mode & 0o777 == 0o777 & ~io.umask()
+
+
+def test_killed_export_leaves_the_old_twin_and_a_rerun_finishes(tmp_path):
+    _, model = synthetic_model(4, "chain", ("revolute", "prismatic"), 1.0, True)
+    rng = np.random.default_rng(0)
+    for lk in model.links:  # many points: meshing and writing take a while
+        lk.points = np.concatenate([lk.points + 0.002 * rng.normal(size=lk.points.shape)
+                                    for _ in range(40)])
+        lk.match_indices = np.full(len(lk.points), -1)
+        lk.colours = lk.normals = lk.observed_in = None
+    path = model.save(tmp_path / "model.json")
+    out = tmp_path / "twin" / "t.xml"
+    argv = ["artrecon", "export", str(path), "--format", "mjcf", "--out", str(out)]
+    assert subprocess.run([sys.executable, "-m", *argv, "--voxel-size", "0.02"], cwd=REPO,
+                          capture_output=True).returncode == 0
+    old = tree(tmp_path)
+    proc = _start([*argv, "--voxel-size", "0.01", "--overwrite"])
+    _wait_for(lambda: list(out.parent.rglob(".*.tmp")), proc, poll=0.005)
+    code, _ = _signal(proc, signal.SIGKILL)
+    assert code == -signal.SIGKILL
+    assert _visible(tree(tmp_path)) == _visible(old)  # every real name: the old bytes
+    rerun = subprocess.run([sys.executable, "-m", *argv, "--voxel-size", "0.01", "--overwrite"],
+                           cwd=REPO, capture_output=True, text=True)
+    assert rerun.returncode == 0, rerun.stderr
+    assert not list(tmp_path.rglob(".*.tmp"))  # the killed run's temporaries are gone too
+    assert tree(path) == {str(path): old[str(path)]}
+    import mujoco
+
+    mujoco.MjModel.from_xml_path(str(out))
+
+
+@pytest.mark.slow
+def test_killed_and_interrupted_reconstructions_keep_the_old_result(rendered, tmp_path):
+    """SIGKILL, then Ctrl-C, mid-run of `artrecon reconstruct --overwrite` over an earlier
+    result: the earlier result stays byte for byte, Ctrl-C prints one line and exits 130,
+    and a third run replaces the result whole and leaves no work folder."""
+    out = tmp_path / "model"
+    _, old_model = synthetic_model(5, "pair", ("revolute",))
+    old_model.save(out / "model.json")
+    (out / "notes.txt").write_text("part of the earlier result")
+    old = tree(out)
+    argv = ["artrecon", "reconstruct", str(rendered["a"].folder), str(rendered["b"].folder),
+            "--out", str(out), "--overwrite", "--use-poses", "--quiet"]
+
+    def work_dirs():
+        return [p for p in tmp_path.glob(".model.tmp-*") if (p / "a").is_dir()]
+
+    killed = _start(argv)
+    stale = _wait_for(work_dirs, killed)
+    code, _ = _signal(killed, signal.SIGKILL)
+    assert code == -signal.SIGKILL and tree(out) == old and stale[0].exists()
+
+    interrupted = _start(argv)
+    _wait_for(lambda: [p for p in work_dirs() if str(interrupted.pid) in p.name], interrupted)
+    assert not stale[0].exists()  # removed by the next run, the killed one's
+    code, err = _signal(interrupted, signal.SIGINT)
+    assert code == 130 and "Traceback" not in err
+    assert len(_lines(err)) == 1 and "interrupted" in err, err
+    assert tree(out) == old and not list(tmp_path.glob(".model.tmp-*"))
+
+    done = subprocess.run([sys.executable, "-m", *argv], cwd=REPO, capture_output=True,
+                          text=True, timeout=1800)
+    assert done.returncode == 0, done.stderr
+    assert not (out / "notes.txt").exists() and (out / "links" / "link_0.ply").is_file()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+    from artrecon.model import ArticulatedModel
+
+    assert len(ArticulatedModel.load(out / "model.json").joints) == 1
+
+
+def test_interrupted_capture_is_one_line_and_leaves_nothing(tmp_path):
+    out = tmp_path / "a"
+    proc = _start(["sim.capture", "pliers", "--config", "a", "--views", "8", "--out", str(out),
+                   "--quiet"])
+    _wait_for(lambda: [p for p in tmp_path.iterdir() if p.name.startswith(".a.")], proc)
+    code, err = _signal(proc, signal.SIGINT)
+    assert code == 130 and "Traceback" not in err, err
+    assert len([ln for ln in _lines(err) if not ln.startswith("INFO")]) == 1, err
+    assert "interrupted" in err and list(tmp_path.iterdir()) == []
+
+
+def test_interrupted_evaluation_is_one_line(tmp_path):
+    """Ctrl-C in `python -m sim.evaluate` printed a 48-line KeyboardInterrupt traceback."""
+    out = tmp_path / "ev"
+    proc = _start(["sim.evaluate", "pliers", "--views", "8", "--out", str(out), "--quiet",
+                   "--no-manipulate"])
+    _wait_for(lambda: (out / "cache").is_dir() and list((out / "cache").iterdir()), proc)
+    time.sleep(2.0)  # both captures (this process and the spawned one for B) under way
+    code, err = _signal(proc, signal.SIGINT)
+    assert code == 130 and "Traceback" not in err, err
+    assert len(_lines(err)) == 1 and "interrupted" in err, err
+    # the cache holds no folder under a real name without its stage.json
+    for p in (out / "cache").iterdir():
+        assert p.name.startswith(".") or (p / "stage.json").is_file(), p
