@@ -773,7 +773,8 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
             "model_frame": "world frame of configuration A's camera poses (metres)" if metric
             else "configuration A's SfM frame (arbitrary scale)",
             # the focal length SfM used: given, from EXIF, or self-calibrated (and refined)
-            "intrinsics": {k: camera_summary(s.reconstruction, given=intr is not None)
+            "intrinsics": {k: camera_summary(s.reconstruction, intr is not None,
+                                             s.model_dir.parents[1])
                            for (k, s), intr in zip(sfms.items(), (intr_a, intr_b), strict=True)},
             "registered_images": {k: s.reconstruction.num_reg_images() for k, s in sfms.items()},
             "num_images": {k: s.num_images for k, s in sfms.items()},
