@@ -227,3 +227,18 @@ def test_export_never_writes_over_a_hard_link_to_its_model(tmp_path, capsys):
     code, err = refused(main, _export(path, "urdf", tmp_path / "twin.urdf", "--overwrite"),
                         capsys, tmp_path)
     assert code == 2 and "is the model file being exported" in err
+
+
+def test_library_writer_given_a_folder_leaves_no_temporary(tmp_path):
+    """``--out`` naming a folder left a 159 kB ``.partial`` file beside it; the library's
+    writers check every target before putting any in place and remove their temporaries."""
+    from artrecon import export as ex
+    from artrecon.errors import InputError
+    from artrecon.model import ArticulatedModel
+
+    model = ArticulatedModel.load(_model(tmp_path))
+    (tmp_path / "out").mkdir()
+    before = tree(tmp_path)
+    with pytest.raises(InputError, match="is a folder, where a file would be written"):
+        ex.export_glb(model, tmp_path / "out")
+    assert tree(tmp_path) == before
