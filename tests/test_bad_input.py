@@ -429,6 +429,47 @@ def test_matches_of_different_objects_are_called_so():
     assert explain_segmentation_failure(info.value, pa, pb, SegmentationConfig()) is info.value
 
 
+def test_nothing_moved_is_told_from_the_matches_first():
+    """check_motion, before segmentation: matches that fit the room's motion (up to wrong
+    matches that fit nothing together) are 'nothing moved'; the whole object moved against the
+    room is 'one rigid body'; a real joint, or too few room matches, passes."""
+    from scipy.spatial.transform import Rotation
+    from synthetic import make_object
+
+    from artrecon.confidence import check_motion
+    from artrecon.errors import NoMotionError, SingleBodyError
+    from artrecon.procrustes import Similarity
+    from artrecon.segment import SegmentationConfig
+
+    obj = make_object(0, "pair", ("revolute",), points_per_link=150, noise=0.002)
+    rng = np.random.default_rng(0)
+    frame = Similarity(Rotation.from_rotvec([0.2, -0.4, 0.1]).as_matrix(),
+                       np.array([0.3, 1.0, -2.0]), 1.7)  # B's SfM frame against A's
+    room_a = rng.uniform(-6, 6, (300, 3))
+    room_b = frame.apply(room_a) + 0.01 * rng.normal(size=room_a.shape)
+    pa, cfg = obj.points_a, SegmentationConfig()
+    wrong = rng.choice(len(pa), 80, replace=False)
+
+    def with_wrong(pb):
+        pb = pb.copy()
+        pb[wrong] = rng.uniform(pb.min(0), pb.max(0), (len(wrong), 3))
+        return pb
+
+    still = with_wrong(frame.apply(pa) + 0.002 * rng.normal(size=pa.shape))
+    with pytest.raises(NoMotionError, match="^nothing moved between A and B: 3.. of the 450"):
+        check_motion(pa, still, room_a, room_b, cfg)
+    turn = Similarity(Rotation.from_rotvec([0, 0, 0.5]).as_matrix(), np.array([0.2, 0, 0]), 1.0)
+    with pytest.raises(SingleBodyError, match="^the whole object moved as one rigid body"):
+        check_motion(pa, frame.apply(turn.apply(pa)), room_a, room_b, cfg)
+    base = obj.link_motions[obj.joints[0].parent]  # the room moves with the base
+    moved = np.empty_like(pa)
+    for k in range(int(obj.labels.max()) + 1):
+        m = obj.labels == k
+        moved[m] = frame.apply(base.inverse().apply(obj.link_motions[k].apply(pa[m])))
+    check_motion(pa, with_wrong(moved), room_a, room_b, cfg)  # a joint moved: no error
+    check_motion(pa, still, room_a[:10], room_b[:10], cfg)  # too few room matches: no verdict
+
+
 def _render(folder: Path, parts, poses) -> None:
     """Render quads from OpenCV camera poses into folder/images, with cameras.json (a capture)."""
     import json
