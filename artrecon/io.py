@@ -378,6 +378,10 @@ def check_output_dir(out_dir: str | Path, inputs=(), *, overwrite: bool = False,
         kind = "a symbolic link" if out_dir.is_symlink() else "a file"
         raise InputError(f"{flag} {out_dir} is {kind}, not a folder; the output is a folder: "
                          f"name a new one (a file is never replaced)")
+    above = next((p for p in out_dir.absolute().parents if p.exists() or p.is_symlink()), None)
+    if above is not None and not above.is_dir():
+        raise InputError(f"{flag} {out_dir} cannot be made: {above} is a file, not a folder; "
+                         f"nothing was written. Choose a {flag} inside a folder")
     if out_dir.exists():
         if not overwrite:
             raise InputError(f"output folder {out_dir} exists; choose another {flag} or pass "
@@ -417,7 +421,10 @@ def parse_intrinsics(value, size: tuple[int, int] | None = None) -> Intrinsics:
         try:
             data = json.loads(Path(value).read_text())
             K = np.asarray(data["K"], dtype=float)
-        except (ValueError, KeyError, TypeError) as exc:
+        except KeyError as exc:
+            raise InputError(f"cannot read intrinsics from {value}: expected JSON with a 3x3 'K' "
+                             f"(it has no {exc})") from exc
+        except (ValueError, TypeError) as exc:
             raise InputError(f"cannot read intrinsics from {value}: expected JSON with a 3x3 'K' "
                              f"({exc})") from exc
         wh = (int(data["width"]), int(data["height"])) if "width" in data else size
@@ -429,7 +436,11 @@ def parse_intrinsics(value, size: tuple[int, int] | None = None) -> Intrinsics:
             raise InputError(f"intrinsics {value!r}: expected 'fx,fy,cx,cy' in pixels or a JSON "
                              "file with 'K'") from exc
         return Intrinsics(np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]]), size)
-    K = np.asarray(value, dtype=float)
+    try:
+        K = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:  # ragged rows, text
+        raise InputError(f"intrinsics 'K' must be a 3x3 matrix of numbers (three rows of three), "
+                         f"got {str(value)[:80]}") from exc
     if K.shape != (3, 3):
         raise InputError(f"intrinsics: expected a (3, 3) matrix, 'fx,fy,cx,cy' or a JSON file "
                          f"with 'K', got shape {K.shape}")

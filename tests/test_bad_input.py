@@ -163,7 +163,7 @@ def intrinsics_nan(t):
     return _args(*_pair(t), t / "o", "--intrinsics", "nan,50,31.5,23.5")
 
 
-@case("cannot read intrinsics", "3x3 'K'")
+@case("cannot read intrinsics", "3x3 'K'", "it has no 'K'")
 def intrinsics_file_without_k(t):
     (t / "k.json").write_text('{"f": 50}')
     return _args(*_pair(t), t / "o", "--intrinsics", str(t / "k.json"))
@@ -180,7 +180,7 @@ def cameras_json_a_list(t):
     return _args(_capture(t / "a", 1, cameras="[1, 2]"), write_images(t / "b", seed=2), t / "o")
 
 
-@case("is malformed", "cameras.json")
+@case("cameras.json", "must be a 3x3 matrix of numbers")
 def cameras_json_ragged_k(t):
     bad = {"K": [[50, 0], [0, 50, 23.5], [0, 0, 1]], "images": []}
     return _args(_capture(t / "a", 1, cameras=bad), write_images(t / "b", seed=2), t / "o")
@@ -299,7 +299,7 @@ def out_overwrite_of_a_folder_that_is_no_result(t):
     return _args(*_pair(t), t / "docs", "--overwrite")
 
 
-@case("nothing was written", "file")
+@case("cannot be made", "is a file, not a folder", "nothing was written")
 def out_under_a_file(t):
     (t / "file").write_text("a file where the output's parent folder should be")
     return _args(*_pair(t), t / "file" / "o")

@@ -98,7 +98,7 @@ def model_of_another_format(t):
     return _export(_model(t, format="something.else"), "mjcf", t / "t.xml")
 
 
-@case("non-finite coordinates")
+@case("model.json: the points of link(s) [1] hold non-finite", "reconstruct again")
 def model_with_nan_points(t):
     path = _model(t)
     d = json.loads(path.read_text())

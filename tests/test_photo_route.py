@@ -13,6 +13,7 @@ import json
 import random
 import shutil
 
+import cv2
 import numpy as np
 import pycolmap
 import pytest
@@ -29,9 +30,10 @@ from artrecon.reconstruct import reconstruct
 FOCAL_TOLERANCE = 0.01
 
 
-def _plain_copy(fixture_set, folder, shuffle_seed=None) -> dict[str, str]:
+def _plain_copy(fixture_set, folder, shuffle_seed=None, scale=1.0) -> dict[str, str]:
     """The set's images alone (no cameras.json) in ``folder``; shuffled under new names when a
-    seed is given. Returns {new name: fixture name}."""
+    seed is given; resized by ``scale`` (area interpolation) when it is not 1. Returns
+    {new name: fixture name}."""
     folder.mkdir(parents=True)
     names = list(fixture_set.names)
     if shuffle_seed is not None:
@@ -39,7 +41,13 @@ def _plain_copy(fixture_set, folder, shuffle_seed=None) -> dict[str, str]:
     mapping = {}
     for k, name in enumerate(names):
         new = f"photo_{k:03d}.png" if shuffle_seed is not None else name
-        shutil.copy(fixture_set.folder / "images" / name, folder / new)
+        source = fixture_set.folder / "images" / name
+        if scale == 1.0:
+            shutil.copy(source, folder / new)
+        else:
+            image = cv2.imread(str(source))
+            size = (round(image.shape[1] * scale), round(image.shape[0] * scale))
+            cv2.imwrite(str(folder / new), cv2.resize(image, size, interpolation=cv2.INTER_AREA))
         mapping[new] = name
     return mapping
 
@@ -61,18 +69,21 @@ def _hinge_errors(model, out, truth_a, mapping):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("order", ["in order", "shuffled"])
+@pytest.mark.parametrize("order", ["in order", "shuffled", "at another size"])
 def test_plain_image_folders_self_calibrate(rendered, tmp_path, order):
-    """cameras.json removed, file names in capture order or shuffled under new names: one
-    self-calibrated camera per set, its focal length reported, and the hinge recovered."""
-    seed = {"in order": None, "shuffled": 1}[order]
-    maps = {c: _plain_copy(rendered[c], tmp_path / c, None if seed is None else seed + i)
+    """cameras.json removed, file names in capture order, shuffled under new names, or the
+    images at 3/4 of their size (480 x 360; the issue's third plain-folder case): one
+    self-calibrated camera per set, its focal length reported (scaled with the images), and
+    the hinge recovered."""
+    seed = {"shuffled": 1}.get(order)
+    scale = 0.75 if order == "at another size" else 1.0
+    maps = {c: _plain_copy(rendered[c], tmp_path / c, None if seed is None else seed + i, scale)
             for i, c in enumerate("ab")}
     out = tmp_path / "model"
     model = reconstruct(tmp_path / "a", tmp_path / "b", out_dir=out, progress=False)
     for c, cam in model.metadata["intrinsics"].items():
         assert cam["source"] == "self-calibrated" and cam["model"] == "SIMPLE_PINHOLE", cam
-        assert abs(cam["focal_px"] / rf.FOCAL - 1) < FOCAL_TOLERANCE, (c, cam["focal_px"])
+        assert abs(cam["focal_px"] / (scale * rf.FOCAL) - 1) < FOCAL_TOLERANCE, (c, cam)
     ang, dist, dq = _hinge_errors(model, out, rendered["a"], maps["a"])
     focal = [round(c["focal_px"], 2) for c in model.metadata["intrinsics"].values()]
     print(f"{order}: focal {focal} px; axis {ang:.3f} deg, {dist * 1e3:.2f} mm, joint angle "

@@ -8,6 +8,8 @@ import os
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from artrecon.errors import ArtreconError, InputError
 from artrecon.export.formats import FORMATS, SUFFIX, export_model
 from artrecon.export.twin import COLLISION_CLUSTERS, DEFAULT_DENSITY, ExportConfig
@@ -102,6 +104,11 @@ def run_export(args: argparse.Namespace) -> int:
                               seed=args.seed)
         check_export_target(args.model, args.format, args.out, overwrite)
         model = ArticulatedModel.load(args.model)
+        bad = [k for k, lk in enumerate(model.links) if not np.all(np.isfinite(lk.points))]
+        if bad:
+            raise InputError(f"{args.model}: the points of link(s) {bad} hold non-finite "
+                             "coordinates (NaN or inf), which no reconstruction writes: the file "
+                             "is damaged or was edited; reconstruct again or restore it")
         paths = export_model(model, args.format, args.out, config, overwrite=overwrite,
                              protect=[args.model])
     except (ArtreconError, ValueError, OSError) as exc:
