@@ -9,7 +9,7 @@ the fact), :mod:`~sim.evaluate.gates` (the one gate table and verdict),
 from sim.evaluate.cli import main
 from sim.evaluate.config import STAGES, EvalConfig, StageError
 from sim.evaluate.gates import GATES, verdict
-from sim.evaluate.runner import evaluate_scene, manipulation_target, run, run_meta
+from sim.evaluate.runner import evaluate_scene, run, run_meta
 from sim.evaluate.scoring import (
     link_correspondence,
     rigid_bodies,
@@ -20,5 +20,5 @@ from sim.evaluate.scoring import (
 )
 
 __all__ = ["GATES", "STAGES", "EvalConfig", "StageError", "evaluate_scene", "link_correspondence",
-           "main", "manipulation_target", "rigid_bodies", "run", "run_meta", "sample_surface",
+           "main", "rigid_bodies", "run", "run_meta", "sample_surface",
            "score_joints", "score_scene", "segmentation_truth", "verdict"]

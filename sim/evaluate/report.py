@@ -153,14 +153,49 @@ def verdict_lines(r: dict) -> list[str]:
         for g in r.get("failed_gates") or [])]
 
 
+def manipulation_lines(man: dict | None) -> list[str]:
+    """results.md lines of a scene's manipulations: one per model joint moved."""
+    if not man:
+        return []
+    if not man.get("runs"):
+        return [f"- manipulation: {man.get('reason') or 'not run'}"]
+    out = []
+    for r in man["runs"]:
+        head = f"- manipulation of {r['model_joint']} (true joint {r.get('true_joint') or '-'})"
+        if r.get("error") or r.get("achieved") is None:
+            out.append(f"{head}: {r.get('error') or r.get('reason')}")
+            continue
+        out.append(
+            f"{head}: {_f(r['achieved'], 2)} of {_f(r['requested'], 2)} {r['unit']} "
+            f"({_f(100 * r['relative_error'], 1)}% off); peak force {_f(r['peak_force_n'], 1)} N "
+            f"(limit {_f(r['force_limit_n'], 1)} N; the true joint needs "
+            f"{_f(r.get('needed_force_n'), 2)} N), grasp {'LOST' if r['grasp_lost'] else 'held'}"
+            f"; grasp point {r['grasp_visibility']}"
+            f"{' (hidden from the camera)' if r['grasp_hidden'] else ''} on {r['grasp_body']}")
+    return out
+
+
+def registration_lines(reg: dict | None) -> list[str]:
+    """results.md lines of a scene's registration routes and their errors against the truth."""
+    if not reg:
+        return []
+    out = []
+    for name, e in (reg.get("truth_errors") or {}).items():
+        out.append(f"- registration {name}: {_f(e['rotation_deg'], 3)} deg, "
+                   f"{_f(e['translation_mm'], 2)} mm, scale {_f(e['scale_percent'], 3)}% off the "
+                   f"true registration")
+    return out
+
+
 def summary_rows(results: dict) -> list[list[str]]:
     """One row per (scene, true moving joint): the headline figures in report units."""
     rows = []
     for name, r in results["scenes"].items():
         man = r.get("manipulation") or {}
         man_s = (f"{_f(man.get('achieved'), 1)}/{_f(man.get('requested'), 1)} "
-                 f"{man.get('unit', '')} {_f(man.get('peak_force_n'), 0)} N"
-                 if man.get("requested") is not None else (man.get("reason") and "n/a") or "-")
+                 f"{man.get('unit', '')} {_f(man.get('peak_force_n'), 1)} N"
+                 if man.get("requested") is not None else
+                 ("failed" if man.get("runs") else (man.get("reason") and "n/a") or "-"))
         model = r.get("model") or {}
         hidden = model.get("hidden") or {}
         base = [name, _f(r.get("segmentation_accuracy"), 3),
@@ -253,9 +288,8 @@ def markdown(results: dict) -> str:
                     f"true surface at A: "
                     f"{_f(seg.get('accuracy_nearest_surface_at_a'), 3)}"]
         out += tree_lines(r)
-        man = r.get("manipulation")
-        if man:
-            out += [f"- manipulation: {json.dumps({k: man.get(k) for k in ('joint_target', 'requested', 'achieved', 'unit', 'peak_force_n', 'grasp_hidden', 'grasp_body', 'reason') if k in man})}"]  # noqa: E501
+        out += manipulation_lines(r.get("manipulation"))
+        out += registration_lines(r.get("registration"))
         ts = r.get("timings_s") or {}
         if ts:
             out += ["- time (s): " + ", ".join(f"{k} {_f(v, 1)}" for k, v in ts.items())

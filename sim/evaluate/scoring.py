@@ -37,7 +37,7 @@ TABLE_NORMAL = (0.0, 0.0, 1.0)
 
 
 def sample_surface(scene: Scene, configuration: str = "a", spacing: float = SURFACE_SPACING_M,
-                   seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                   seed: int = 0, normals: bool = False):
     """Points sampled uniformly by area on the object's visual meshes, in the world frame.
 
     Parameters
@@ -54,6 +54,9 @@ def sample_surface(scene: Scene, configuration: str = "a", spacing: float = SURF
     points : (m, 3) float
     links : (m,) int
         Index into ``scene.links`` of each sample's link.
+    normals : (m, 3) float
+        Only with ``normals=True``: the unit normal of each sample's triangle (the mesh's
+        winding: outward).
     """
     model = scene.model
     data = scene.make_data(configuration)
@@ -87,7 +90,10 @@ def sample_surface(scene: Scene, configuration: str = "a", spacing: float = SURF
     s1 = np.sqrt(r1)
     w = np.stack([1 - s1, s1 * (1 - r2), s1 * r2], axis=1)
     pts = np.einsum("nk,nkd->nd", w, T[idx])
-    return pts, L[idx]
+    if not normals:
+        return pts, L[idx]
+    n_ = np.cross(T[idx, 1] - T[idx, 0], T[idx, 2] - T[idx, 0])
+    return pts, L[idx], n_ / np.linalg.norm(n_, axis=1, keepdims=True)
 
 
 # ---------------------------------------------------------------------------- scoring
@@ -388,3 +394,73 @@ def score_scene(scene: Scene, registered, sfm_poses: dict, T_reg, set_a: Path,
     return out
 
 
+
+
+def score_registration(routes: dict, T_true, model) -> dict:
+    """Each registration route's error against the true registration (rotation deg, translation
+    mm at the model's points, scale %): ``{"truth_errors": {route: {...}}}``."""
+    from artrecon.register import true_registration_error
+
+    pts = np.concatenate([np.asarray(lk.points, float) for lk in model.links if len(lk.points)])
+    return {"truth_errors": {name: true_registration_error(T, T_true, pts)
+                             for name, T in routes.items()}}
+
+
+def score_manipulation(scene: Scene, model_joint: str, run: dict, row: dict | None,
+                       reference: dict | None) -> dict:
+    """One manipulation of a model joint, scored: the true joint it estimates (``row``, the
+    pairing of :func:`score_joints`), its displacement in the sense of the estimate against the
+    requested motion (deg or mm), the weld's peak force against the limit (``force_factor``
+    times the force the true joint needs, from ``reference``, at least ``force_floor_n``:
+    :data:`sim.evaluate.gates.GATES`)."""
+    from sim.evaluate.gates import GATES
+
+    out = {"model_joint": model_joint, "true_joint": None if row is None else row["name"],
+           "error": run.get("error")}
+    est = run.get("estimate") or {}
+    rev = est.get("type") == "revolute"
+    k, unit = (np.rad2deg(1.0), "deg") if rev else (1e3, "mm")
+    out.update(unit=unit, requested=k * float(run["requested"]))
+    if run.get("error"):
+        return {**out, "achieved": None, "relative_error": None, "passes": False}
+    out.update({key: run[key] for key in ("grasp_point", "grasp_normal", "grasp_hidden",
+                                          "grasp_visibility", "grasp_body", "grasp_lost",
+                                          "grasp_lost_at", "planned_in", "arm_contacts")})
+    out.update(peak_force_n=run["peak_force"], rms_force_n=run["rms_force"],
+               peak_torque_nm=run["peak_torque"], grip_limits=run["grip_limits"],
+               tracking_max_deg=run["tracking_max_deg"],
+               path_error_max_mm=run["path_error_max_mm"],
+               moved={n: run["joints_after"][n] - run["joints_before"][n]
+                      for n in run["joints_after"]
+                      if abs(run["joints_after"][n] - run["joints_before"][n]) > 1e-5})
+    if row is None:
+        return {**out, "achieved": None, "relative_error": None, "passes": False,
+                "reason": "the model's joint estimates no true joint (an invented joint)"}
+    tj = scene.joint(row["name"])
+    raw = run["joints_after"][tj.name] - run["joints_before"][tj.name]
+    sense = 1.0 if (tj.type != est["type"] or float(np.dot(tj.axis, est["axis"])) >= 0) else -1.0
+    achieved = k * sense * raw
+    rel = abs(achieved - out["requested"]) / abs(out["requested"]) if out["requested"] else None
+    needed = None if not reference or reference.get("error") else reference["peak_force"]
+    limit = max(GATES["manipulation_force_factor"] * (needed or 0.0),
+                GATES["manipulation_force_floor_n"])
+    out.update(achieved=achieved, relative_error=rel, needed_force_n=needed,
+               reference=reference, force_limit_n=limit)
+    out["passes"] = bool(rel is not None and rel <= GATES["manipulation_relative_error"]
+                         and not run["grasp_lost"] and run["peak_force"] <= limit)
+    return out
+
+
+def summarise_manipulations(runs: list[dict]) -> dict:
+    """The manipulation record of a scene: every run, and the worst figures over them."""
+    done = [r for r in runs if r.get("achieved") is not None]
+    worst = max(done, key=lambda r: r["relative_error"], default=None)
+    return {"runs": runs, "joints_moved": len(runs),
+            "requested": None if worst is None else worst["requested"],
+            "achieved": None if worst is None else worst["achieved"],
+            "unit": None if worst is None else worst["unit"],
+            "relative_error": None if worst is None else worst["relative_error"],
+            "peak_force_n": max((r["peak_force_n"] for r in done), default=None),
+            "grasp_hidden_any": any(r.get("grasp_hidden") for r in done),
+            "passes": bool(runs) and all(r["passes"] for r in runs),
+            "reason": None if runs else "the model has no joint: nothing to move"}
