@@ -253,14 +253,19 @@ def markdown(results: dict) -> str:
             out += [f"**Error** in stage `{r.get('error_stage')}`: {r['error']}", ""]
         reg = r.get("registration") or {}
         if reg:
-            pnp = reg.get("pnp")
-            out += [f"- registration: scale {_f(reg.get('scale_m_per_unit'), 6)} m/unit, "
-                    f"{reg.get('inliers')}/{reg.get('cameras')} cameras, rms "
-                    f"{_f(reg.get('rms_mm'), 2)} mm; PnP route: "
-                    + (f"disagreement {_f(pnp['disagreement']['translation_mm'], 2)} mm rms, "
-                       f"{_f(pnp['disagreement']['rotation_deg'], 3)} deg, scale ratio "
-                       f"{_f(pnp['disagreement']['scale_ratio'], 4)}" if pnp
-                       else f"not available ({reg.get('pnp_reason')})")]
+            routes = reg.get("routes") or {}
+            cc, pnp = routes.get("camera_centres") or {}, routes.get("pnp") or {}
+            agree = (reg.get("agreement") or {}).get("comparison") or {}
+            out += [f"- registration ({reg.get('chosen_route')}): scale "
+                    f"{_f(reg.get('scale_m_per_unit'), 6)} m/unit; camera centres "
+                    f"{cc.get('inliers')}/{cc.get('cameras')} cameras, rms "
+                    f"{_f(cc.get('rms_mm'), 2)} mm; PnP of the fresh view "
+                    + ", ".join(f"{im['inliers']}/{im['matches']} inliers, "
+                                f"{_f(im['reprojection_rms_px'], 2)} px"
+                                for im in pnp.get("images") or [])
+                    + f" (scale from {pnp.get('scale_from')}); routes "
+                    f"{_f(agree.get('translation_mm'), 2)} mm, "
+                    f"{_f(agree.get('rotation_deg'), 3)} deg apart"]
         cam = r.get("camera_pose_error") or {}
         if cam:
             out += [f"- camera poses: position median {_f(cam.get('position_median_mm'), 2)} mm,"

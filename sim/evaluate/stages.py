@@ -363,7 +363,8 @@ def manipulation_reference_stage(scene: Scene, true_joint: str, run: dict, q_sta
     def build(folder: Path) -> dict:
         try:
             res = manipulate(scene, est, amount, grasp_point=run["grasp_point"],
-                             grasp_normal=run["grasp_normal"], q_start=q_start)
+                             grasp_normal=run["grasp_normal"], q_start=q_start,
+                             joint=true_joint)
             out = {"peak_force": res.peak_force, "rms_force": res.rms_force,
                    "peak_torque": res.peak_torque, "grasp_lost": res.grasp_lost,
                    "displacement": res.displacement(true_joint)}

@@ -33,12 +33,8 @@ from sim.manipulate.estimate import (
     joint_estimate_from_model,
     joint_estimate_from_scene,
 )
-from sim.manipulate.execute import (
-    GripConfig,
-    ManipulationResult,
-    achieved_along,
-    execute,
-)
+from sim.manipulate.execute import GripConfig, ManipulationResult, achieved_along
+from sim.manipulate.execute import execute as execute_plan
 from sim.manipulate.planning import (
     GraspCandidate,
     PlanningConfig,
@@ -63,6 +59,12 @@ def moving_links(registered, joint: int) -> set[int]:
         out.add(k)
         todo += registered.children_of(k)
     return out
+
+
+def _descends(model, body: int, root: int) -> bool:
+    while body > 0 and body != root:
+        body = int(model.body_parentid[body])
+    return body == root
 
 
 def manipulate(scene, estimate: JointEstimate, amount: float, *, registered=None,
@@ -130,11 +132,17 @@ def manipulate(scene, estimate: JointEstimate, amount: float, *, registered=None
         planning = (PlanningWorld.from_model(world, registered, planning_config)
                     if registered is not None else
                     PlanningWorld.from_scene(world, planning_config))
+    if registered is not None:
+        moving = moving_links(registered, model_joint) if model_joint is not None else set()
+    else:  # the true world: the bodies that ride on the followed joint's child
+        target = default_joint(scene) if joint is None else scene.joint(joint)
+        root = scene.link(target.child).body_id
+        moving = {b for b in world.object_bodies if _descends(world.model, b, root)}
     if grasp_point is not None:
         n = np.array([0.0, 0.0, 1.0]) if grasp_normal is None else np.asarray(grasp_normal, float)
         (cand,) = planning.classify_visibility(
             q_start, [GraspCandidate(np.asarray(grasp_point, float), n / np.linalg.norm(n))])
-        plan, why = plan_candidate(planning, cand, estimate, amount, q_start, seed)
+        plan, why = plan_candidate(planning, cand, estimate, amount, q_start, seed, moving)
         if plan is None:
             raise ManipulationError(f"the given grasp point cannot be grasped and moved: {why}")
         summary = {"total": 1, "hidden": int(cand.hidden), "usable": 1,
@@ -146,17 +154,15 @@ def manipulate(scene, estimate: JointEstimate, amount: float, *, registered=None
                     raise ValueError("give model_joint: the model's joint whose child to grasp")
                 candidates = model_grasp_candidates(registered, model_joint, planning_config)
             else:
-                target = default_joint(scene) if joint is None else scene.joint(joint)
                 candidates = scene_grasp_candidates(world, data,
                                                     scene.link(target.child).body_ids)
-        moving = () if registered is None else moving_links(registered, model_joint)
         plan, summary = plan_grasp(planning, candidates, estimate, amount, q_start,
                                    prefer_hidden=prefer_hidden, seed=seed, moving_links=moving)
     c = plan.candidate
     if c.hidden:
         log.info("grasp point %s is HIDDEN from the wrist camera at the current pose (%s)",
                  np.round(c.point, 3).tolist(), c.visibility)
-    result = execute(world, plan, estimate, amount, q_start, candidates_summary=summary,
+    result = execute_plan(world, plan, estimate, amount, q_start, candidates_summary=summary,
                      planned_in=planning.source, grip=grip, record_every=record_every)
     if c.hidden:
         result.log.insert(0, f"grasp point {np.round(c.point, 3).tolist()} is HIDDEN from the "
@@ -167,7 +173,7 @@ def manipulate(scene, estimate: JointEstimate, amount: float, *, registered=None
 __all__ = [
     "GraspCandidate", "GripConfig", "JointEstimate", "ManipulationError", "ManipulationResult",
     "PlanningConfig", "PlanningWorld", "WRONG_AXIS_TILT_DEG", "World", "achieved_along",
-    "build_world", "default_joint", "execute", "fresh_data", "joint_estimate_from_model",
+    "build_world", "default_joint", "execute_plan", "fresh_data", "joint_estimate_from_model",
     "joint_estimate_from_scene", "manipulate", "model_grasp_candidates", "moving_links",
     "plan_candidate", "plan_grasp", "rank", "scene_grasp_candidates",
 ]

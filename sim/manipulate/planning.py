@@ -327,8 +327,13 @@ class PlanningWorld:
     @classmethod
     def from_scene(cls, world: World, config: PlanningConfig = PlanningConfig()
                    ) -> PlanningWorld:
-        """The true world (demonstrations along the true joint; never the harness's plan)."""
-        return cls(world, world.model, "true object (demonstration)", config, {},
+        """The true world (demonstrations along the true joint and scoring's force reference;
+        never the harness's plan). The object's geoms stand in for the model's spheres, each
+        under its body's id (``moving_links`` are then body ids)."""
+        m = world.model
+        geoms = {g: int(m.geom_bodyid[g]) for g in range(m.ngeom)
+                 if int(m.geom_bodyid[g]) in world.object_bodies}
+        return cls(world, m, "true object (demonstration)", config, geoms,
                    config.occlusion_margin)
 
     # ------------------------------------------------------------------ questions to the world
