@@ -159,9 +159,13 @@ def configuration_chains(scene: Scene, ev: EvalConfig, cache_root: Path, scene_h
     pool = future = None
     if ev.parallel_capture:
         import multiprocessing
+        import os
         from concurrent.futures import ProcessPoolExecutor
         from dataclasses import replace
 
+        # one core each: the CPU rasteriser's threads (read when a process first renders) and,
+        # in artrecon's per-configuration stage, BLAS and OpenCV (artrecon.configuration)
+        os.environ.setdefault("LP_NUM_THREADS", "1")
         pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
         future = pool.submit(configuration_chain, scene, "b", replace(ev, progress=False),
                              cache_root, scene_hash, settings)
