@@ -41,6 +41,7 @@ def light_run(name: str, ev: EvalConfig, out_dir: Path) -> dict:
            "tree_correct": True, "invented_joints": [], "segmentation_accuracy": 0.99,
            "segmentation": {"off_surface_share": 0.01}, "manipulation": None,
            "wall_s": 0.01, "views": ev.views}
+    res["joints"][0]["passes"] = gates.joint_passes(res["joints"][0])
     v = gates.verdict(res, manipulate=ev.manipulate)
     res.update(passed=v["passed"], failed_gates=v["failed"])
     return res

@@ -456,7 +456,7 @@ def write_scene_pictures(result: dict, out_dir: Path) -> list[Path]:
 #: :func:`error_bars` bar of that family as a fraction of the gate (so joints in degrees and in
 #: millimetres share one scale).
 FAMILIES = (("axis angle", "axis angle"), ("axis position", "axis position"),
-            ("state", "joint state"), ("segmentation miss", "segmentation miss (1 - accuracy)"),
+            ("state", "joint state"), ("segmentation miss", "segmentation miss (1-acc)"),
             ("points off the object", "points off the object"),
             ("manipulation rel. err", "manipulation relative error"))
 
