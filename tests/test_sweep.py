@@ -242,6 +242,16 @@ def test_command_line_sweep_verdict_names_runs_and_gates(tmp_path, monkeypatch, 
     assert cli.main([*argv, "--report-only", "--resume"]) == 0
 
 
+def test_ctrl_c_prints_one_line_and_exits_130(tmp_path, monkeypatch, capsys):
+    def interrupted(*a, **kw):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep, "run_sweep", interrupted)
+    assert cli.main(["pliers", "--seeds", "0-1", "--out", str(tmp_path), "--quiet"]) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("interrupted:") and "--resume" in err[0]
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--address", "auto"], "--backend ray"),
     (["--seed", "1", "--seeds", "0-2"], "either --seed or --seeds"),
@@ -287,6 +297,37 @@ def test_ray_sweep_gives_the_process_pools_results_and_retries_a_dead_worker(tmp
     assert _stable(on_ray) == _stable(pool)
     assert [r["attempts"] for r in on_ray["runs"]] == [1, 2, 1, 2]
     assert on_ray["meta"]["sweep"]["backend"] == "ray"
+
+
+# ---------------------------------------------------------------------------- the harness
+
+
+@pytest.mark.slow
+def test_real_sweep_on_two_worker_processes(tmp_path):
+    """The harness itself, two seeds of pliers (8 views per ring, no manipulation) on two worker
+    processes: both runs in the merged report with the results of their own folders, each seed
+    its own captures in the one shared cache, each worker's output in its run's log; run again
+    with --resume, nothing runs and the report is the same. (About 2 x 100 s of CPU.)"""
+    argv = ["pliers", "--seeds", "0-1", "--views", "8", "--no-manipulate", "--jobs", "2",
+            "--out", str(tmp_path), "--quiet", "--report-only"]
+    assert cli.main(argv) == 0
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert [r["id"] for r in results["runs"]] == ["pliers-seed0", "pliers-seed1"]
+    for rec in results["runs"]:
+        res = rec["result"]
+        assert rec["status"] in ("passed", "failed") and rec["attempts"] == 1
+        assert res["scene_hash"] and res["error_stage"] != "worker"  # the harness ran
+        own = json.loads((tmp_path / rec["dir"] / "results.json").read_text())
+        assert own["scenes"]["pliers"] == res and own["meta"]["seed"] == rec["spec"][
+            "config"]["seed"]
+        assert (tmp_path / rec["dir"] / "log.txt").is_file()
+    assert len(list((tmp_path / "cache").glob("capture_a-*"))) == 2  # captured in the workers
+    assert not list((tmp_path / "cache").glob(".*"))  # no work folder, no lock file left
+    before = (tmp_path / "results.json").stat().st_mtime_ns
+    assert cli.main([*argv, "--resume"]) == 0
+    again = json.loads((tmp_path / "results.json").read_text())
+    assert again["runs"] == results["runs"]
+    assert (tmp_path / "results.json").stat().st_mtime_ns >= before
 
 
 # ---------------------------------------------------------------------------- the stage cache

@@ -113,6 +113,8 @@ class RunSpec:
 
         ev = {f.name: getattr(self.config, f.name) for f in dataclasses.fields(self.config)
               if f.name not in NON_RESULT_FIELDS}
+        ev = {k: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v
+              for k, v in ev.items()}
         ev["perturb"] = self.config.perturb.changed()
         return _clean({"scene": self.scene, "config": ev, "perturbation": self.perturbation,
                        "strength": self.strength, "label": self.label})
@@ -516,7 +518,8 @@ def run_sweep(specs: list[RunSpec], out_dir: Path, sweep: SweepConfig | None = N
     bar = tqdm(total=len(specs), initial=len(specs) - len(todo), desc="runs", unit="run",
                disable=not sweep.progress, dynamic_ncols=True)
     bar.set_postfix(failed=state.n_failed(), refresh=False)
-    state.write()
+    if layout == "sweep" or state.records:  # a sweep lists its runs from the start; the main
+        state.write()  # job's report is replaced only when a run has finished, as before
     queue = collections.deque((spec, 1) for spec in todo)
     live: dict = {}
     t0 = time.perf_counter()
