@@ -678,7 +678,7 @@ def draw_sweep_errors(results: dict) -> np.ndarray:
             for r in runs}
     fams = [(k, t) for k, t in FAMILIES if any(k in v for v in vals.values())]
     col, row, left, top = max(90, min(180, 900 // max(1, len(groups)))), 90, 190, 60
-    w, h = left + col * len(groups) + 20, top + row * max(1, len(fams)) + 70
+    w, h = max(760, left + col * len(groups) + 20), top + row * max(1, len(fams)) + 70
     img = np.full((h, w, 3), 255, np.uint8)
     _put(img, "errors per scene and seed, as a fraction of their gate (dashed: the gate)",
          (10, 24), 0.55)
@@ -689,7 +689,7 @@ def draw_sweep_errors(results: dict) -> np.ndarray:
         y0 = top + fi * row
         y1 = y0 + row - 15
 
-        def Y(v, y0=y0, y1=y1):
+        def Y(v, y0=y0 + 10, y1=y1):  # room above the scale for the values beyond it
             return int(y1 - min(v, CHART_TOP) / CHART_TOP * (y1 - y0))
 
         _put(img, title[:26], (8, y0 + row // 2), 0.42)
@@ -710,7 +710,7 @@ def draw_sweep_errors(results: dict) -> np.ndarray:
                 colour = (40, 170, 40) if v <= 1.0 else (220, 40, 40)
                 cv2.circle(img, (x, Y(v)), 5, colour, -1, cv2.LINE_AA)
                 if v > CHART_TOP:
-                    _put(img, f"{v:.2g}x", (x + 6, Y(v) + 12), 0.35, (220, 40, 40))
+                    _put(img, f"{v:.2g}x", (x + 8, Y(v) + 4), 0.35, (220, 40, 40))
                 _put(img, str(r["spec"]["config"]["seed"]), (x - 3, y1 + 12), 0.3, (90, 90, 90))
     _put(img, "small numbers under the dots: seeds; cross at the top: no figure (error, died)",
          (10, h - 12), 0.4, (90, 90, 90))
