@@ -41,6 +41,14 @@ def stable(obj):
     return obj
 
 
+def _cpu_s() -> float:
+    """User + system CPU seconds of this process and its finished children (the workers)."""
+    import resource
+
+    return sum(resource.getrusage(who).ru_utime + resource.getrusage(who).ru_stime
+               for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
+
+
 def main(argv=None) -> int:
     from sim.evaluate import EvalConfig, sweep
 
@@ -65,20 +73,26 @@ def main(argv=None) -> int:
     walls, figures = {}, {}
     for name, cfg in configs:
         load0 = os.getloadavg()
+        cpu0 = _cpu_s()
         t0 = time.perf_counter()
         res = sweep.run_sweep(specs, out / name, cfg, layout="sweep",
                               command=f"bench_sweep {name}")
         walls[name] = time.perf_counter() - t0
+        cpu = _cpu_s() - cpu0
         load1 = os.getloadavg()
         figures[name] = [stable(r["result"]) for r in res["runs"]]
         status = ", ".join(f"{r['id']} {r['status']}" for r in res["runs"])
-        print(f"{name}: {walls[name]:.0f} s wall; load average (1 min) {load0[0]:.1f} before, "
-              f"{load1[0]:.1f} after; {status}", flush=True)
+        # Ray's workers are the raylet's children, not this process's: their CPU is not counted
+        busy = ("" if name == "ray" else
+                f"; {cpu:.0f} CPU s in this process and its workers ({cpu / walls[name]:.2f} "
+                "cores busy on average)")
+        print(f"{name}: {walls[name]:.0f} s wall{busy}; load average (1 min) {load0[0]:.1f} "
+              f"before, {load1[0]:.1f} after; {status}", flush=True)
     for name in walls:
         if name != "jobs1":
             same = figures[name] == figures["jobs1"]
             print(f"{name} / jobs1 wall time: {walls[name] / walls['jobs1']:.2f}; figures "
-                  f"{'the same' if same else 'DIFFERENT'} as jobs1")
+                  f"{'the same as' if same else 'DIFFERENT from'} jobs1")
     return 0
 
 
