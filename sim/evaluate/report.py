@@ -483,3 +483,344 @@ def write_scene_pictures(result: dict, out_dir: Path) -> list[Path]:
     _write_png(path, pic)
     written.append(path)
     return written
+
+
+# ---------------------------------------------------------------------------- sweeps
+# The merged report of a sweep (sim.evaluate.sweep): every run, per scene and setting the median,
+# worst and spread over seeds, and two kinds of pictures: the gated errors of every run per scene
+# and seed (sweep_errors.png), and of a robustness sweep the errors against each perturbation's
+# strength (sweep_<perturbation>.png).
+
+#: Figure families of the sweep charts: (key, title); a run's value of a family is its worst
+#: :func:`error_bars` bar of that family as a fraction of the gate (so joints in degrees and in
+#: millimetres share one scale).
+FAMILIES = (("axis angle", "axis angle"), ("axis position", "axis position"),
+            ("state", "joint state"), ("segmentation miss", "segmentation miss (1-acc)"),
+            ("points off the object", "points off the object"),
+            ("manipulation rel. err", "manipulation relative error"))
+
+
+def run_bars(result: dict | None, manipulate: bool = True
+             ) -> list[tuple[str, float | None, float, str]]:
+    """:func:`error_bars` of a run's result, lower is better for each (none for a run that has
+    no result; no manipulation bar for a run that did not manipulate)."""
+    if not result:
+        return []
+    bars = error_bars(result, GATES)
+    return [b for b in bars if manipulate or not b[0].startswith("manipulation")]
+
+
+def family_values(result: dict | None, manipulate: bool = True) -> dict[str, float | None]:
+    """``{family: worst value / gate}`` of a run (:data:`FAMILIES`; None: not measured)."""
+    out: dict[str, float | None] = {}
+    for label, value, gate, _ in run_bars(result, manipulate):
+        fam = next(k for k, _ in FAMILIES if label.endswith(k))
+        frac = None if value is None else (value / gate if gate > 0 else float("inf"))
+        if fam not in out:
+            out[fam] = frac
+        elif out[fam] is not None:  # a joint without the figure is the worst of all
+            out[fam] = None if frac is None else max(out[fam], frac)
+    return out
+
+
+def _median(values: list[float]) -> float:
+    v = sorted(values)
+    n = len(v)
+    return v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2])
+
+
+def sweep_summary(runs: list[dict]) -> list[dict]:
+    """Per group of runs (same scene and setting, seeds apart): seeds, how many passed, and for
+    every gated figure the median, worst (largest: every figure is an error, the segmentation
+    as ``1 - accuracy``) and spread (max - min) over the runs that measured it.
+
+    Parameters
+    ----------
+    runs : list of dict
+        The sweep's run records (``results.json`` ``runs``).
+    """
+    groups: dict[str, list[dict]] = {}
+    for rec in runs:
+        groups.setdefault(rec["group"], []).append(rec)
+    out = []
+    for name, recs in groups.items():
+        spec = recs[0]["spec"]
+        figures: dict[str, dict] = {}
+        for rec in recs:
+            manip = rec["spec"]["config"].get("manipulate", True)
+            for label, value, gate, unit in run_bars(rec.get("result"), manip):
+                f = figures.setdefault(label, {"unit": unit, "gate": gate, "values": {}})
+                f["values"][str(rec["spec"]["config"]["seed"])] = value
+        for f in figures.values():
+            vals = [v for v in f["values"].values() if v is not None]
+            f.update(n=len(vals), missing=len(recs) - len(vals),
+                     median=_median(vals) if vals else None, worst=max(vals) if vals else None,
+                     spread=(max(vals) - min(vals)) if vals else None)
+            f["worst_passes"] = f["worst"] is not None and f["worst"] <= f["gate"]
+        out.append({"group": name, "scene": spec["scene"], "perturbation": spec["perturbation"],
+                    "strength": spec["strength"], "label": spec["label"],
+                    "seeds": [r["spec"]["config"]["seed"] for r in recs], "runs": len(recs),
+                    "passed": sum(r["status"] == "passed" for r in recs),
+                    "failed": [r["id"] for r in recs if r["status"] != "passed"],
+                    "figures": figures})
+    return out
+
+
+def run_reason(rec: dict) -> str:
+    """Why a run did not pass: its error, or the gates it failed (empty if it passed)."""
+    res = rec.get("result") or {}
+    if rec["status"] == "not run":
+        return "not run"
+    if res.get("error"):
+        return res["error"]
+    return "; ".join(f"{g['subject']}: {g['gate']}" for g in res.get("failed_gates") or [])
+
+
+def run_name(rec: dict) -> str:
+    """``scene seed k [label]`` of a run record."""
+    spec = rec["spec"]
+    return (f"{(rec.get('result') or {}).get('scene') or spec['scene']} seed "
+            f"{spec['config']['seed']}" + (f" {spec['label']}" if spec.get("label") else ""))
+
+
+SWEEP_HEADER = ["run", "status", "attempts", "axis deg", "pos mm", "state", "seg acc",
+                "off obj", "wall s", "error or failed gates"]
+
+
+def sweep_rows(results: dict) -> list[list[str]]:
+    """One row per run: its worst joint figures and status."""
+    rows = []
+    for rec in results["runs"]:
+        r = rec.get("result") or {}
+        js = r.get("joints") or []
+
+        def worst(key, js=js):
+            vals = [j.get(key) for j in js if j.get(key) is not None]
+            return max(vals) if vals else None
+
+        units = sorted({j.get("state_error_unit") for j in js if j.get("state_error_unit")})
+        state = worst("state_error")
+        rows.append([rec["id"], rec["status"].upper() if rec["status"] != "passed" else "PASS",
+                     str(rec.get("attempts", 0)), _f(worst("axis_angle_deg"), 3),
+                     _f(worst("axis_position_mm"), 2),
+                     "-" if state is None else f"{state:.3f} {'/'.join(units)}",
+                     _f(r.get("segmentation_accuracy"), 3),
+                     _f((r.get("segmentation") or {}).get("off_surface_share"), 3),
+                     _f(r.get("wall_s"), 0), run_reason(rec)[:70]])
+    return rows
+
+
+def sweep_table(results: dict) -> str:
+    """The sweep as aligned plain text: every run, then per group passed / runs."""
+    table = [SWEEP_HEADER, *sweep_rows(results)]
+    widths = [max(len(r[i]) for r in table) for i in range(len(SWEEP_HEADER))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip()
+             for r in table]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    lines += ["", "per scene over seeds: " + ", ".join(
+        f"{g['group']} {g['passed']}/{g['runs']} passed" for g in results["summary"])]
+    return "\n".join(lines)
+
+
+def sweep_markdown(results: dict) -> str:
+    """``results.md`` of a sweep: verdict, per scene over seeds, every run, pictures."""
+    meta = results.get("meta", {})
+    sw = meta.get("sweep") or {}
+    runs = results["runs"]
+    passed = sum(r["status"] == "passed" for r in runs)
+    out = ["# artrecon sweep", "",
+           f"{meta.get('date', '')}, `{meta.get('command', '')}`: {len(runs)} runs, seeds "
+           f"{meta.get('seeds')}, backend {sw.get('backend')}"
+           + (f" at {sw['address']}" if sw.get("address") else "")
+           + (f", {sw['jobs']} jobs" if sw.get("jobs") else "")
+           + (f", {sw['wall_s']:.0f} s wall" if sw.get("wall_s") is not None else "")
+           + f"; {meta.get('views_per_ring')} views per ring, cameras: "
+           f"{POSE_LABELS.get(meta.get('poses'), meta.get('poses'))}"
+           + ("" if meta.get("manipulate", True) else ", no manipulation") + ".", "",
+           "Versions: " + ", ".join(f"{k} {v}" for k, v in meta.get("versions", {}).items()),
+           "", f"**{passed} of {len(runs)} runs passed every gate.**"
+           + ("" if passed == len(runs) else " Failed: " + "; ".join(
+               f"{run_name(r)} ({run_reason(r)[:120]})" for r in runs
+               if r["status"] != "passed")), "",
+           "## Per scene over seeds", "",
+           "Every gated figure as an error (the segmentation as 1 - accuracy): median, worst and "
+           "spread (max - min) over the runs that measured it; *missing*: runs without the "
+           "figure (an error or a dead worker).", "",
+           "| scene / setting | seeds | passed | figure | median | worst | spread | gate | "
+           "missing |", "|---|---|---|---|---|---|---|---|---|"]
+    for g in results["summary"]:
+        first = True
+        for label, f in g["figures"].items():
+            cells = ([g["group"], ", ".join(str(s) for s in g["seeds"]),
+                      f"{g['passed']}/{g['runs']}"] if first else ["", "", ""])
+            first = False
+            worst = _f(f["worst"], 3) + ("" if f["worst_passes"] else " **FAIL**")
+            out.append("| " + " | ".join(cells + [
+                label, f"{_f(f['median'], 3)} {f['unit']}".strip(), worst,
+                _f(f["spread"], 3), f"{f['gate']:g}", str(f["missing"])]) + " |")
+        if first:
+            out.append(f"| {g['group']} | {', '.join(str(s) for s in g['seeds'])} | "
+                       f"{g['passed']}/{g['runs']} | - | - | - | - | - | {g['runs']} |")
+    out += ["", "![errors per scene and seed](sweep_errors.png)", ""]
+    for name in (meta.get("perturbations") or {}):
+        out += [f"![{name}](sweep_{name}.png)", ""]
+    out += ["## Every run", "", "| " + " | ".join(SWEEP_HEADER + ["worker", "report"]) + " |",
+            "|" + "---|" * (len(SWEEP_HEADER) + 2)]
+    for rec, row in zip(runs, sweep_rows(results), strict=True):
+        w = rec.get("worker") or {}
+        row[-1] = run_reason(rec)[:200]
+        where = f"{w.get('host')} pid {w.get('pid')}" if w.get("host") else "-"
+        link = f"[{rec['dir']}]({rec['dir']}/results.md)" if rec.get("result") else "-"
+        out.append("| " + " | ".join(c.replace("|", "/") for c in row + [where, link]) + " |")
+    return "\n".join(out) + "\n"
+
+
+def write_sweep(results: dict, out_dir: Path) -> None:
+    """A sweep's merged ``results.json``, ``results.md`` and pictures in ``out_dir``."""
+    out_dir = Path(out_dir)
+    write_json_atomic(out_dir / "results.json", _clean(results))
+    try:
+        _write_png(out_dir / "sweep_errors.png", draw_sweep_errors(results))
+        for name, axis in (results["meta"].get("perturbations") or {}).items():
+            _write_png(out_dir / f"sweep_{name}.png", draw_strength_chart(results, name, axis))
+    except Exception as err:  # pictures must not sink the numbers
+        log.warning("sweep pictures failed: %s", err)
+    write_bytes_atomic(out_dir / "results.md", sweep_markdown(results).encode())
+
+
+def _cross(img, c, colour, r=6):
+    cv2.line(img, (c[0] - r, c[1] - r), (c[0] + r, c[1] + r), colour, 2, cv2.LINE_AA)
+    cv2.line(img, (c[0] - r, c[1] + r), (c[0] + r, c[1] - r), colour, 2, cv2.LINE_AA)
+
+
+def _dashed(img, y, x0, x1, colour):
+    for x in range(x0, x1, 10):
+        cv2.line(img, (x, y), (min(x + 5, x1), y), colour, 1)
+
+
+def _put(img, text, org, scale=0.45, colour=(0, 0, 0)):
+    cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
+
+
+#: Largest value / gate drawn on the sweep charts' scale (beyond it: at the top, value written).
+CHART_TOP = 2.0
+
+
+def draw_sweep_errors(results: dict) -> np.ndarray:
+    """Every run's gated errors per scene and seed: a row per figure family (:data:`FAMILIES`),
+    a column per scene / setting, a dot per seed at value / gate (the dashed line: the gate;
+    green passes, red fails; a red cross at the top: no figure, the run failed or died).
+    Returns an RGB uint8 image."""
+    runs = results["runs"]
+    groups = list(dict.fromkeys(r["group"] for r in runs))
+    vals = {r["id"]: family_values(r.get("result"), r["spec"]["config"].get("manipulate", True))
+            for r in runs}
+    fams = [(k, t) for k, t in FAMILIES if any(k in v for v in vals.values())]
+    col, row, left, top = max(90, min(180, 900 // max(1, len(groups)))), 90, 190, 60
+    w, h = max(760, left + col * len(groups) + 20), top + row * max(1, len(fams)) + 70
+    img = np.full((h, w, 3), 255, np.uint8)
+    _put(img, "errors per scene and seed, as a fraction of their gate (dashed: the gate)",
+         (10, 24), 0.55)
+    for gi, g in enumerate(groups):
+        x = left + gi * col
+        _put(img, g[:22], (x + 4, h - 40), 0.4)
+    for fi, (key, title) in enumerate(fams):
+        y0 = top + fi * row
+        y1 = y0 + row - 15
+
+        def Y(v, y0=y0 + 10, y1=y1):  # room above the scale for the values beyond it
+            return int(y1 - min(v, CHART_TOP) / CHART_TOP * (y1 - y0))
+
+        _put(img, title[:26], (8, y0 + row // 2), 0.42)
+        cv2.rectangle(img, (left, y0), (left + col * len(groups), y1), (190, 190, 190), 1)
+        _dashed(img, Y(1.0), left, left + col * len(groups), (0, 120, 230))
+        _put(img, "1", (left - 14, Y(1.0) + 4), 0.35, (0, 90, 200))
+        _put(img, "0", (left - 14, y1 + 4), 0.35)
+        for gi, g in enumerate(groups):
+            recs = [r for r in runs if r["group"] == g]
+            for k, r in enumerate(recs):
+                x = left + gi * col + int((k + 1) * col / (len(recs) + 1))
+                v = vals[r["id"]].get(key)
+                if key not in vals[r["id"]] and r.get("result") and not r["result"].get("error"):
+                    continue  # the run has no such figure (e.g. no revolute joint)
+                if v is None:
+                    _cross(img, (x, y0 + 8), (30, 30, 220))
+                    continue
+                colour = (40, 170, 40) if v <= 1.0 else (220, 40, 40)
+                cv2.circle(img, (x, Y(v)), 5, colour, -1, cv2.LINE_AA)
+                if v > CHART_TOP:
+                    _put(img, f"{v:.2g}x", (x + 8, Y(v) + 4), 0.35, (220, 40, 40))
+                _put(img, str(r["spec"]["config"]["seed"]), (x - 3, y1 + 12), 0.3, (90, 90, 90))
+    _put(img, "small numbers under the dots: seeds; cross at the top: no figure (error, died)",
+         (10, h - 12), 0.4, (90, 90, 90))
+    return img
+
+
+def _axis_points(results: dict, name: str, axis: dict):
+    """(strength, record) of every run on perturbation ``name``'s axis, the baseline runs (no
+    perturbation) at ``axis["neutral"]`` when given."""
+    pts = []
+    for r in results["runs"]:
+        s = r["spec"]
+        if s["perturbation"] == name and s["strength"] is not None:
+            pts.append((float(s["strength"]), r))
+        elif not s["perturbation"] and axis.get("neutral") is not None:
+            pts.append((float(axis["neutral"]), r))
+    return sorted(pts, key=lambda p: p[0])
+
+
+def draw_strength_chart(results: dict, name: str, axis: dict) -> np.ndarray:
+    """Errors against the strength of one perturbation: axis angle (deg) and joint state (as a
+    fraction of its gate: joints in degrees and millimetres alike) of each run's worst joint, a
+    dot per seed, the line through the medians, the gate dashed; a red cross at the top: no
+    figure (the run failed or refused). ``axis``: ``title``, ``unit``, ``neutral``."""
+    pts = _axis_points(results, name, axis)
+    w, h = 920, 340
+    img = np.full((h, w, 3), 255, np.uint8)
+    _put(img, f"{axis.get('title', name)}"[:110], (10, 20), 0.5)
+    xs = sorted({x for x, _ in pts}) or [0.0]
+    xmin, xmax = xs[0], xs[-1]
+    span = (xmax - xmin) or 1.0
+    panels = [("axis angle error (deg)", GATES["axis_angle_deg"],
+               lambda r: max((j["axis_angle_deg"] for j in (r.get("joints") or [])
+                              if j.get("axis_angle_deg") is not None), default=None)),
+              ("joint state error / gate", 1.0,
+               lambda r: family_values(r, False).get("state"))]
+    for pi, (title, gate, get) in enumerate(panels):
+        x0 = pi * (w // 2)
+        px0, py0, px1, py1 = x0 + 55, 50, x0 + w // 2 - 15, h - 60
+        cv2.rectangle(img, (px0, py0), (px1, py1), (150, 150, 150), 1)
+        _put(img, title, (x0 + 10, 42), 0.45)
+        values = [(x, None if not r.get("result") else get(r["result"])) for x, r in pts]
+        top = max([2 * gate] + [min(v, 10 * gate) for _, v in values if v is not None]) * 1.1
+
+        def X(x, px0=px0, px1=px1):
+            return int(px0 + 12 + (x - xmin) / span * (px1 - px0 - 24))
+
+        def Y(y, py0=py0, py1=py1, top=top):
+            return int(py1 - min(y, top) / top * (py1 - py0))
+
+        for k in range(5):
+            _put(img, f"{top * k / 4:.2g}", (x0 + 8, Y(top * k / 4) + 4), 0.35)
+        for x in xs:
+            _put(img, f"{x:g}", (X(x) - 10, py1 + 16), 0.35)
+        _put(img, f"strength ({axis.get('unit', '')})", ((px0 + px1) // 2 - 50, py1 + 34), 0.4)
+        _dashed(img, Y(gate), px0, px1, (0, 120, 230))
+        _put(img, f"gate {gate:g}", (px1 - 70, Y(gate) - 5), 0.35, (0, 90, 200))
+        medians = []
+        for x in xs:
+            at = [v for xx, v in values if xx == x]
+            ok = [v for v in at if v is not None]
+            if ok:
+                medians.append((X(x), Y(_median(ok))))
+        for a, b in zip(medians, medians[1:], strict=False):
+            cv2.line(img, a, b, (40, 90, 200), 2, cv2.LINE_AA)
+        for x, v in values:
+            if v is None:
+                _cross(img, (X(x), py0 + 10), (30, 30, 220))
+                continue
+            cv2.circle(img, (X(x), Y(v)), 5, (40, 170, 40) if v <= gate else (220, 40, 40), -1,
+                       cv2.LINE_AA)
+    _put(img, "a dot per seed (green within the gate, red beyond), line through the medians; "
+         "cross at the top: the run gave no figure", (10, h - 8), 0.38, (90, 90, 90))
+    return img

@@ -238,25 +238,12 @@ def run_meta(ev: EvalConfig, command: str) -> dict:
 
 
 def run(names: list[str], ev: EvalConfig, out_dir: Path, argv: list[str] | None = None) -> dict:
-    """Evaluate scenes and write the report folder. Returns the results dict (results.json)."""
-    from tqdm import tqdm
+    """Evaluate scenes and write the report folder. Returns the results dict (results.json).
 
-    from sim.evaluate import report
+    One run per scene at the settings ``ev``, one after the other in this process: the trivial
+    sweep (:func:`sim.evaluate.sweep.run_sweep`, which runs seeds and perturbations in parallel).
+    """
+    from sim.evaluate import sweep
 
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    results = {"scenes": {},
-               "meta": run_meta(ev, " ".join(["python -m sim.evaluate", *(argv or [])]))}
-    for name in tqdm(names, desc="scenes", unit="scene", disable=not ev.progress):
-        res = evaluate_scene(name, ev, out_dir)
-        results["meta"]["scene_hashes"][res["scene"]] = res.get("scene_hash")
-        try:
-            report.write_scene_pictures(res, out_dir)
-        except Exception as err:  # pictures must not sink the numbers
-            log.warning("%s: pictures failed: %s", res["scene"], err)
-            res["pictures_error"] = f"{type(err).__name__}: {err}"
-        results["scenes"][res["scene"]] = report.jsonable_scene(res)
-        report.write_results(results, out_dir)  # after every scene: a killed run keeps the rest
-    return results
-
-
+    return sweep.run_sweep(sweep.plan(names, ev), out_dir,
+                           sweep.SweepConfig(progress=ev.progress), argv=argv)
