@@ -40,6 +40,8 @@ def light_run(name: str, ev: EvalConfig, out_dir: Path) -> dict:
                        "state_error": 0.05, "state_error_unit": "deg"}],
            "tree_correct": True, "invented_joints": [], "segmentation_accuracy": 0.99,
            "segmentation": {"off_surface_share": 0.01}, "manipulation": None,
+           "registration": {"truth_errors": {"pnp": {"rotation_deg": 0.01, "translation_mm": 0.1,
+                                                      "scale_percent": 0.01}}},
            "wall_s": 0.01, "views": ev.views}
     res["joints"][0]["passes"] = gates.joint_passes(res["joints"][0])
     v = gates.verdict(res, manipulate=ev.manipulate)
