@@ -32,7 +32,7 @@ import numpy as np
 import pycolmap
 from threadpoolctl import threadpool_limits
 
-from artrecon import __version__
+from artrecon._version import __version__
 from artrecon.dense import DenseConfig, DensePoints, RegionConfig, dense_points, object_region
 from artrecon.errors import InputError, ReconstructionError
 from artrecon.io import (

@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from artrecon import __version__
+from artrecon._version import __version__
 from artrecon.assign import AssignConfig, assign_dense_to_links, views_from_sfm
 from artrecon.confidence import ConfidenceConfig, assess_joints, explain_segmentation_failure
 from artrecon.configuration import Configuration, load_configuration, reconstruct_configuration

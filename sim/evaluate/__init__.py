@@ -11,7 +11,7 @@ the fact), :mod:`~sim.evaluate.gates` (the one gate table and verdict),
 from sim.evaluate.cli import main
 from sim.evaluate.config import STAGES, EvalConfig, StageError
 from sim.evaluate.gates import GATES, verdict
-from sim.evaluate.runner import evaluate_scene, run, run_meta
+from sim.evaluate.runner import evaluate_scene, run_meta
 from sim.evaluate.scoring import (
     link_correspondence,
     rigid_bodies,
@@ -20,6 +20,7 @@ from sim.evaluate.scoring import (
     score_scene,
     segmentation_truth,
 )
+from sim.evaluate.sweep import run
 
 __all__ = ["GATES", "STAGES", "EvalConfig", "StageError", "evaluate_scene", "link_correspondence",
            "main", "rigid_bodies", "run", "run_meta", "sample_surface",

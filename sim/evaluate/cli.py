@@ -13,7 +13,7 @@ import numpy as np
 from sim import perturb
 from sim.evaluate import report, sweep
 from sim.evaluate.config import MIN_VIEWS, POSE_SOURCES, EvalConfig
-from sim.evaluate.runner import run
+from sim.evaluate.sweep import run
 from sim.scene import Scene, SceneError, list_scenes, load_scene, physics_warnings
 
 #: Simulated time stepped per scene to look for MuJoCo warnings (the Menagerie check).

@@ -67,21 +67,21 @@ from sim import cache, perturb
 from sim.evaluate import gates
 from sim.evaluate.config import EvalConfig
 from sim.evaluate.scoring import (
+    manipulation_reference_stage,
     score_manipulation,
     score_registration,
     score_scene,
     summarise_manipulations,
+    true_registration,
 )
 from sim.evaluate.stages import (
     configuration_chains,
     fresh_view_stage,
     last_arm_pose,
-    manipulation_reference_stage,
     manipulation_stage,
     reconstruct_stage,
     register_configuration,
     register_stage,
-    true_registration,
     versions,
 )
 from sim.scene import load_scene
@@ -235,15 +235,3 @@ def run_meta(ev: EvalConfig, command: str) -> dict:
             "perturbation": ev.perturb.changed(), "command": command,
             "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "scene_hashes": {}, "gates": gates.GATES, "platform": platform.platform()}
-
-
-def run(names: list[str], ev: EvalConfig, out_dir: Path, argv: list[str] | None = None) -> dict:
-    """Evaluate scenes and write the report folder. Returns the results dict (results.json).
-
-    One run per scene at the settings ``ev``, one after the other in this process: the trivial
-    sweep (:func:`sim.evaluate.sweep.run_sweep`, which runs seeds and perturbations in parallel).
-    """
-    from sim.evaluate import sweep
-
-    return sweep.run_sweep(sweep.plan(names, ev), out_dir,
-                           sweep.SweepConfig(progress=ev.progress), argv=argv)

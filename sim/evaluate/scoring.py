@@ -464,3 +464,56 @@ def summarise_manipulations(runs: list[dict]) -> dict:
             "grasp_hidden_any": any(r.get("grasp_hidden") for r in done),
             "passes": bool(runs) and all(r["passes"] for r in runs),
             "reason": None if runs else "the model has no joint: nothing to move"}
+
+
+# ---------------------------------------------------------------------------- references
+# What the truth says a perfect answer would have given: computed after the fact, for scoring.
+
+
+def true_registration(model_dir: Path, set_a: Path):
+    """The true model-to-world similarity (an artrecon Similarity; scoring only): configuration
+    A's SfM camera centres against the true camera centres of ``ground_truth/poses.json``."""
+    from artrecon.procrustes import similarity_transform
+    from sim.evaluate.stages import sfm_camera_poses
+
+    sfm = sfm_camera_poses(model_dir, "a")
+    truth = read_json(Path(set_a) / "ground_truth" / "poses.json")
+    true = {im["file"]: np.asarray(im["T_world_camera"], float) for im in truth["images"]}
+    names = [n for n in sorted(sfm) if n in true]
+    return similarity_transform(np.array([sfm[n][:3, 3] for n in names]),
+                                np.array([true[n][:3, 3] for n in names]))
+
+
+def manipulation_reference_stage(scene: Scene, true_joint: str, run: dict, q_start,
+                                 cache_root: Path, scene_hash: str) -> tuple[dict, dict, bool]:
+    """Scoring only, after the motion: the same grasp point and the same requested motion, but
+    along the scene's TRUE joint ``true_joint``: the force the joint itself asks for (friction,
+    damping, inertia, the arm's own dynamics). The manipulation's force limit is a multiple of
+    it. Cached; a reference that cannot be planned or grasped is recorded (``error``)."""
+    from sim import cache
+    from sim.evaluate.stages import _manipulate_sources
+    from sim.manipulate import JointEstimate, ManipulationError, manipulate
+
+    tj = scene.joint(true_joint)
+    est = JointEstimate(tj.type, tj.axis, tj.point, "ground truth (force reference)", tj.name)
+    sense = 1.0 if float(np.dot(tj.axis, run["estimate"]["axis"])) >= 0 else -1.0
+    amount = sense * float(run["requested"])
+    inputs = {"scene_hash": scene_hash, "joint": true_joint, "amount": amount,
+              "grasp": [run["grasp_point"], run["grasp_normal"]], "q_start": list(q_start),
+              "code": _manipulate_sources()}
+
+    def build(folder: Path) -> dict:
+        try:
+            res = manipulate(scene, est, amount, grasp_point=run["grasp_point"],
+                             grasp_normal=run["grasp_normal"], q_start=q_start,
+                             joint=true_joint)
+            out = {"peak_force": res.peak_force, "rms_force": res.rms_force,
+                   "peak_torque": res.peak_torque, "grasp_lost": res.grasp_lost,
+                   "displacement": res.displacement(true_joint)}
+        except ManipulationError as err:
+            out = {"error": f"{type(err).__name__}: {err}"}
+        cache.write_json_atomic(folder / "reference.json", out)
+        return {}
+
+    folder, meta, hit = cache.cached_stage(cache_root, "manipulation_reference", inputs, build)
+    return read_json(folder / "reference.json"), meta, hit

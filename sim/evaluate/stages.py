@@ -274,19 +274,6 @@ def fresh_view_stage(scene: Scene, capture_set: Path, capture_key: str, ev: Eval
     return folder / "fresh", meta, hit
 
 
-def true_registration(model_dir: Path, set_a: Path):
-    """The true model-to-world similarity (an artrecon Similarity; scoring only): configuration
-    A's SfM camera centres against the true camera centres of ``ground_truth/poses.json``."""
-    from artrecon.procrustes import similarity_transform
-
-    sfm = sfm_camera_poses(model_dir, "a")
-    truth = read_json(Path(set_a) / "ground_truth" / "poses.json")
-    true = {im["file"]: np.asarray(im["T_world_camera"], float) for im in truth["images"]}
-    names = [n for n in sorted(sfm) if n in true]
-    return similarity_transform(np.array([sfm[n][:3, 3] for n in names]),
-                                np.array([true[n][:3, 3] for n in names]))
-
-
 def register_stage(model_dir: Path, set_a: Path, fresh: Path, seed: int) -> dict:
     """Register the model with artrecon's registration stage (:func:`artrecon.register.register`),
     both routes: (a) the SfM camera centres of A against the arm's FK camera positions of
@@ -346,36 +333,3 @@ def manipulation_stage(scene: Scene, registered, model_joint: int, q_start, keys
 
     folder, meta, hit = cache.cached_stage(cache_root, "manipulation", inputs, build)
     return read_json(folder / "manipulation.json"), meta, hit
-
-
-def manipulation_reference_stage(scene: Scene, true_joint: str, run: dict, q_start,
-                                 cache_root: Path, scene_hash: str) -> tuple[dict, dict, bool]:
-    """Scoring only, after the motion: the same grasp point and the same requested motion, but
-    along the scene's TRUE joint ``true_joint``: the force the joint itself asks for (friction,
-    damping, inertia, the arm's own dynamics). The manipulation's force limit is a multiple of
-    it. Cached; a reference that cannot be planned or grasped is recorded (``error``)."""
-    from sim.manipulate import JointEstimate, ManipulationError, manipulate
-
-    tj = scene.joint(true_joint)
-    est = JointEstimate(tj.type, tj.axis, tj.point, "ground truth (force reference)", tj.name)
-    sense = 1.0 if float(np.dot(tj.axis, run["estimate"]["axis"])) >= 0 else -1.0
-    amount = sense * float(run["requested"])
-    inputs = {"scene_hash": scene_hash, "joint": true_joint, "amount": amount,
-              "grasp": [run["grasp_point"], run["grasp_normal"]], "q_start": list(q_start),
-              "code": _manipulate_sources()}
-
-    def build(folder: Path) -> dict:
-        try:
-            res = manipulate(scene, est, amount, grasp_point=run["grasp_point"],
-                             grasp_normal=run["grasp_normal"], q_start=q_start,
-                             joint=true_joint)
-            out = {"peak_force": res.peak_force, "rms_force": res.rms_force,
-                   "peak_torque": res.peak_torque, "grasp_lost": res.grasp_lost,
-                   "displacement": res.displacement(true_joint)}
-        except ManipulationError as err:
-            out = {"error": f"{type(err).__name__}: {err}"}
-        cache.write_json_atomic(folder / "reference.json", out)
-        return {}
-
-    folder, meta, hit = cache.cached_stage(cache_root, "manipulation_reference", inputs, build)
-    return read_json(folder / "reference.json"), meta, hit

@@ -661,3 +661,12 @@ class _State:
         results = {"meta": meta, "runs": runs, "summary": report.sweep_summary(runs)}
         report.write_sweep(results, self.out)
         return results
+
+
+def run(names: list[str], ev: EvalConfig, out_dir: Path, argv: list[str] | None = None) -> dict:
+    """Evaluate scenes and write the report folder. Returns the results dict (results.json).
+
+    One run per scene at the settings ``ev``, one after the other in this process: the trivial
+    sweep (:func:`run_sweep`, which runs seeds and perturbations in parallel).
+    """
+    return run_sweep(plan(names, ev), out_dir, SweepConfig(progress=ev.progress), argv=argv)
