@@ -21,7 +21,7 @@ PACKAGES = ("artrecon", "sim")
 
 #: The modules that may name the ground-truth folder in code: the writer and the scoring side.
 GROUND_TRUTH_READERS = {"sim.capture", "sim.perturb", "sim.evaluate.scoring",
-                        "sim.evaluate.report"}
+                        "sim.evaluate.pictures"}
 
 
 def _modules() -> dict[str, Path]:

@@ -19,7 +19,7 @@ import pytest
 
 import sim  # noqa: F401
 from sim import cache
-from sim.evaluate import cli, gates, report, sweep
+from sim.evaluate import cli, gates, pictures, sweep
 from sim.evaluate.config import EvalConfig
 from sim.perturb import Perturbation
 
@@ -419,12 +419,12 @@ def test_strength_chart_draws_runs_against_the_perturbation(tmp_path):
     axis = {"title": "image noise", "unit": "grey levels", "neutral": 0}
     results = sweep.run_sweep(specs, tmp_path, sweep.SweepConfig(progress=False),
                               run_fn=light_run, perturbations={"noise": axis})
-    pts = report._axis_points(results, "noise", axis)
+    pts = pictures._axis_points(results, "noise", axis)
     assert [x for x, _ in pts] == [0, 0, 4, 4, 12, 12]
     # the strength reaches the run: 0.01 deg of axis error per grey level of noise
     assert [r["result"]["joints"][0]["axis_angle_deg"] for _, r in pts] == pytest.approx(
         [0.1, 0.2, 0.14, 0.24, 0.22, 0.32])
     assert (tmp_path / "sweep_noise.png").stat().st_size > 1000
     assert "![noise](sweep_noise.png)" in (tmp_path / "results.md").read_text()
-    img = report.draw_strength_chart(results, "noise", axis)
+    img = pictures.draw_strength_chart(results, "noise", axis)
     assert img.shape == (340, 920, 3) and (img != 255).any()

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from sim import perturb
-from sim.evaluate import report, sweep
+from sim.evaluate import report, sweep, sweep_report
 from sim.evaluate.config import MIN_VIEWS, POSE_SOURCES, EvalConfig
 from sim.evaluate.sweep import run
 from sim.scene import Scene, SceneError, list_scenes, load_scene, physics_warnings
@@ -199,7 +199,8 @@ def main(argv: list[str] | None = None) -> int:
               "cache)", file=sys.stderr)
         return 130
     print()
-    print(report.sweep_table(results) if "runs" in results else report.terminal_table(results))
+    print(sweep_report.sweep_table(results) if "runs" in results
+          else report.terminal_table(results))
     print(f"\nreport: {args.out / 'results.json'}, {args.out / 'results.md'}")
     return finish(results, report_only=args.report_only)
 
@@ -234,7 +235,7 @@ def finish_sweep(results: dict, report_only: bool = False) -> int:
         print(f"PASS: all {len(runs)} run(s) met every gate")
         return 0
     for r in failed:
-        print(f"FAIL {report.run_name(r)}: {report.run_reason(r)}", file=sys.stderr)
+        print(f"FAIL {sweep_report.run_name(r)}: {sweep_report.run_reason(r)}", file=sys.stderr)
 
     def gates_of(r):
         res = r.get("result") or {}
@@ -246,7 +247,7 @@ def finish_sweep(results: dict, report_only: bool = False) -> int:
             return "error"
         return ", ".join(sorted({g["gate"] for g in res.get("failed_gates") or []}))
 
-    names = ", ".join(f"{report.run_name(r)} ({gates_of(r)})" for r in failed)
+    names = ", ".join(f"{sweep_report.run_name(r)} ({gates_of(r)})" for r in failed)
     print(f"FAIL: {len(failed)} of {len(runs)} run(s) missed a gate or failed: {names}"
           + (" (--report-only: exit status 0)" if report_only else ""))
     return 0 if report_only else 1

@@ -52,9 +52,12 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from tqdm import tqdm
+
 from artrecon.io import read_json, write_json_atomic
-from sim.evaluate import gates
+from sim.evaluate import gates, pictures, report, sweep_report
 from sim.evaluate.config import EvalConfig
+from sim.evaluate.runner import evaluate_scene, run_meta
 
 log = logging.getLogger(__name__)
 
@@ -109,14 +112,12 @@ class RunSpec:
 
     def describe(self) -> dict:
         """The spec as JSON: what decides the run's figures (compared on resume)."""
-        from sim.evaluate.report import _clean
-
         ev = {f.name: getattr(self.config, f.name) for f in dataclasses.fields(self.config)
               if f.name not in NON_RESULT_FIELDS}
         ev = {k: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v
               for k, v in ev.items()}
         ev["perturb"] = self.config.perturb.changed()
-        return _clean({"scene": self.scene, "config": ev, "perturbation": self.perturbation,
+        return report._clean({"scene": self.scene, "config": ev, "perturbation": self.perturbation,
                        "strength": self.strength, "label": self.label})
 
 
@@ -218,9 +219,6 @@ def execute(task: dict) -> dict:
         ``{"status": "error", "error": ..., "traceback": ...}`` when the run raised; both with
         ``host``, ``pid`` and ``wall_s``.
     """
-    from sim.evaluate import report
-    from sim.evaluate.runner import run_meta
-
     spec: RunSpec = task["spec"]
     t0 = time.perf_counter()
     where = {"host": socket.gethostname(), "pid": os.getpid()}
@@ -228,7 +226,7 @@ def execute(task: dict) -> dict:
         try:
             res = task["run_fn"](spec.scene, spec.config, Path(task["run_dir"]))
             try:
-                report.write_scene_pictures(res, Path(task["picture_dir"]))
+                pictures.write_scene_pictures(res, Path(task["picture_dir"]))
             except Exception as err:  # pictures must not sink the numbers
                 log.warning("%s: pictures failed: %s", res.get("scene"), err)
                 res["pictures_error"] = f"{type(err).__name__}: {err}"
@@ -477,10 +475,6 @@ def run_sweep(specs: list[RunSpec], out_dir: Path, sweep: SweepConfig | None = N
     KeyboardInterrupt
         After ending the workers and writing what finished.
     """
-    from tqdm import tqdm
-
-    from sim.evaluate.runner import evaluate_scene
-
     sweep = sweep or SweepConfig()
     run_fn = run_fn or evaluate_scene
     out = Path(out_dir)
@@ -629,9 +623,6 @@ class _State:
 
     def write(self) -> dict:
         """The merged results.json, results.md and pictures, from the records so far."""
-        from sim.evaluate import report
-        from sim.evaluate.runner import run_meta
-
         base = self.specs[0].config
         meta = run_meta(base, self.command)
         if self.sweep.backend != "local" or (self.sweep.jobs or 1) > 1 or self.layout == "sweep":
@@ -658,8 +649,8 @@ class _State:
                        "status": "not run", "attempts": 0, "worker": None,
                        "dir": os.path.relpath(self.run_dir(spec), self.out), "result": None}
             runs.append(rec)
-        results = {"meta": meta, "runs": runs, "summary": report.sweep_summary(runs)}
-        report.write_sweep(results, self.out)
+        results = {"meta": meta, "runs": runs, "summary": sweep_report.sweep_summary(runs)}
+        sweep_report.write_sweep(results, self.out)
         return results
 
 
