@@ -948,8 +948,10 @@ def main(argv=None) -> int:
     p.add_argument("--model", type=Path, help="registered ArticulatedModel JSON (robot frame, m); "
                    "default: the scene's ground-truth joint")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--angle", type=float, help="requested rotation (deg) for a revolute joint")
-    g.add_argument("--distance", type=float, help="requested translation (m), prismatic joint")
+    g.add_argument("--angle", type=float, help="requested rotation (deg) for a revolute joint "
+                   "(default: the scene's own motion A -> B of its first moving joint)")
+    g.add_argument("--distance", type=float, help="requested translation (m), prismatic joint "
+                   "(default: the scene's own motion A -> B)")
     p.add_argument("--visible", action="store_true", help="prefer a grasp point the camera sees")
     p.add_argument("--tilt", type=float, default=0.0,
                    help="tilt the followed axis by this many degrees (a deliberately wrong axis)")
@@ -972,14 +974,19 @@ def main(argv=None) -> int:
             log.warning("no --model: following the GROUND-TRUTH axis of joint %r", est.name)
         if args.tilt:
             est = est.tilted(args.tilt)
+        # default: the scene's own A -> B motion (of the joint of that type moved first)
+        own = default_joint(scene)
+        own_motion = own.motion if own.type == est.type else None
         if est.type == "revolute":
             if args.distance is not None:
                 p.error("the joint is revolute: give --angle")
-            amount = np.deg2rad(args.angle if args.angle is not None else 30.0)
+            amount = (np.deg2rad(args.angle) if args.angle is not None else
+                      own_motion if own_motion is not None else np.deg2rad(30.0))
         else:
             if args.angle is not None:
                 p.error("the joint is prismatic: give --distance")
-            amount = args.distance if args.distance is not None else 0.10
+            amount = (args.distance if args.distance is not None else
+                      own_motion if own_motion is not None else 0.10)
         world = build_world(scene)
         res = manipulate(scene, est, amount, candidates=candidates,
                          prefer_hidden=not args.visible, record_every=0.05, seed=args.seed,

@@ -176,9 +176,10 @@ def read_source(path: Path, body: str | None = None) -> SourceObject:
 
 
 def default_name(path: Path) -> str:
-    """Scene name from a source path: the folder's name for a ``mobility.urdf``."""
-    stem = path.parent.name if path.stem == "mobility" else path.stem
-    return sanitize(stem)
+    """Scene name from a source path: ``partnet_<folder>`` for a ``mobility.urdf``."""
+    if path.stem == "mobility":  # PartNet-Mobility: one folder per object, named by its id
+        return sanitize(f"partnet_{path.parent.name}")
+    return sanitize(path.stem)
 
 
 def sanitize(name: str) -> str:
