@@ -334,3 +334,53 @@ def test_manipulate_command_moves_the_scenes_own_motion_by_default(tmp_path, mon
     assert asked == {"amount": pytest.approx(math.radians(25)), "joint": "joint_1"}
     man.main([str(res.scene), "--out", str(tmp_path / "m"), "--angle", "10"])
     assert asked["amount"] == pytest.approx(math.radians(10))
+
+
+def _write_textured_urdf(folder: Path, image: np.ndarray) -> Path:
+    """A URDF of a box with a hinged flap, each an OBJ with its own UVs and ``image``."""
+    import trimesh
+    from PIL import Image
+
+    folder.mkdir(parents=True)
+    for name, (lo, hi) in {"base": ((-0.1, -0.1, 0.0), (0.1, 0.1, 0.12)),
+                           "flap": ((-0.1, -0.1, 0.12), (0.1, 0.1, 0.13))}.items():
+        m = trimesh.creation.box(np.subtract(hi, lo))
+        m.apply_translation(np.add(lo, hi) / 2)
+        m = m.subdivide().subdivide()
+        uv = (m.vertices[:, :2] - m.vertices[:, :2].min(0)) / np.ptp(m.vertices[:, :2], 0)
+        uv = 0.1 + 0.8 * (0.7 * uv + 0.3 * (m.vertices[:, 2:3] / 0.13))
+        m.visual = trimesh.visual.TextureVisuals(uv=np.clip(uv, 0, 1),
+                                                 image=Image.fromarray(image))
+        (folder / name).mkdir()
+        m.export(folder / name / f"{name}.obj")
+    (folder / "box.urdf").write_text("""<robot name="box">
+  <link name="base"><visual><geometry><mesh filename="base/base.obj"/></geometry></visual></link>
+  <link name="flap"><visual><geometry><mesh filename="flap/flap.obj"/></geometry></visual></link>
+  <joint name="flap_hinge" type="revolute"><parent link="base"/><child link="flap"/>
+    <origin xyz="-0.1 0 0.12"/><axis xyz="0 -1 0"/><limit lower="0" upper="1.5"/></joint>
+</robot>""")
+    return folder / "box.urdf"
+
+
+def test_texture_source_keeps_the_meshes_own_textures_and_the_check_judges_them(tmp_path):
+    from sim.texture_check import TextureError, check_texture
+
+    rng = np.random.default_rng(1)
+    rich = cv2.resize((rng.random((64, 64, 3)) * 255).astype(np.uint8), (512, 512),
+                      interpolation=cv2.INTER_NEAREST)
+    rich = cv2.GaussianBlur(rich, (0, 0), 1.0)
+    res = import_object(_write_textured_urdf(tmp_path / "rich", rich), tmp_path / "out",
+                        ImportConfig(name="rich", texture="source"))
+    scene = load_scene(res.scene)
+    png = next(p for p in res.assets if p.name == "rich_flap.png")
+    np.testing.assert_array_equal(cv2.imread(str(png))[..., ::-1], rich)  # the source's image
+    assert not check_texture(scene).failing
+    plain = np.full((512, 512, 3), 140, np.uint8)
+    res = import_object(_write_textured_urdf(tmp_path / "plain", plain), tmp_path / "out",
+                        ImportConfig(name="plain", texture="source"))
+    with pytest.raises(TextureError, match="part 'object'.*\n.*part 'flap'"):
+        check_texture(load_scene(res.scene))
+    # a mesh without a texture of its own cannot keep one
+    with pytest.raises(AuthorError, match="no texture of its own.*--texture generated"):
+        import_object(write_partnet_chest(tmp_path / "chest"), tmp_path / "out",
+                      ImportConfig(texture="source"))

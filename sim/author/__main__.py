@@ -65,6 +65,10 @@ def parser() -> argparse.ArgumentParser:
     imp.add_argument("--texel", type=float, default=default.texel,
                      help=f"texel size of the generated textures, m (default {default.texel:g})")
     imp.add_argument("--seed", type=int, default=default.seed, help="texture seed")
+    imp.add_argument("--texture", choices=("generated", "source"), default=default.texture,
+                     help="generated (default): every part UV-unwrapped and given a new "
+                          "non-repeating texture; source: keep the meshes' own UVs and images "
+                          "(then the texture check judges whether they are rich enough)")
     imp.add_argument("--arm", choices=("puma560", "panda"), default=default.arm,
                      help="the arm on the stage (default puma560)")
     imp.add_argument("--overwrite", action="store_true",
@@ -84,7 +88,8 @@ def main(argv: list[str] | None = None) -> int:
         config = ImportConfig(name=args.name, size=args.size, scale=args.scale, up=args.up,
                               body=args.body, config_a=dict(args.config_a),
                               config_b=dict(args.config_b), density=args.density,
-                              texel=args.texel, seed=args.seed, arm=args.arm,
+                              texel=args.texel, seed=args.seed, texture=args.texture,
+                              arm=args.arm,
                               overwrite=args.overwrite)
     except ValueError as err:
         p.error(str(err))

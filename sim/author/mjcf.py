@@ -185,7 +185,7 @@ def read_mjcf(path: str | Path, body: str | None = None) -> SourceObject:
             v = transform_points(T_link_geom, model.mesh_vert[va:va + vn])
             f = np.asarray(model.mesh_face[fa:fa + fn], np.int64)
             if visible:
-                link.visuals.append(Mesh(v, f, gname))
+                link.visuals.append(Mesh(v, f, gname, *_own_texture(model, g, m)))
             if collides:
                 link.collisions.append(Mesh(v, f, gname))
         elif gtype in _PRIMITIVE_TYPES:
@@ -203,6 +203,22 @@ def read_mjcf(path: str | Path, body: str | None = None) -> SourceObject:
     log.info("%s: %d links, %d joints", path, len(links), len(joints))
     return SourceObject(path.stem, path, names[root], links, joints, notes,
                         np.asarray(data.xmat[root], float).reshape(3, 3).copy())
+
+
+def _own_texture(model, g: int, m: int):
+    """A mesh geom's own texture: corner UVs (f, 3, 2) (OBJ convention) and its material's RGB
+    image (h, w, 3) uint8, or None, None."""
+    from sim.render import _material_texture, _texture_image
+
+    tex = _material_texture(model, int(model.geom_matid[g]))
+    if tex < 0 or int(model.mesh_texcoordnum[m]) == 0 or int(model.tex_type[tex]) != int(
+            mujoco.mjtTexture.mjTEXTURE_2D):
+        return None, None
+    ta, fa, fn = (int(model.mesh_texcoordadr[m]), int(model.mesh_faceadr[m]),
+                  int(model.mesh_facenum[m]))
+    uv = np.asarray(model.mesh_texcoord[ta + model.mesh_facetexcoord[fa:fa + fn]], float)
+    uv[..., 1] = 1.0 - uv[..., 1]  # MuJoCo flips the OBJ v on loading; back to OBJ's
+    return uv, _texture_image(model, tex)
 
 
 def _alpha(model, g: int) -> float:

@@ -28,12 +28,17 @@ PRIMITIVES = ("box", "sphere", "capsule", "cylinder", "ellipsoid")
 class Mesh:
     """A triangle mesh in its link's frame (source units).
 
-    vertices : (n, 3) float; faces : (m, 3) int; name : what it came from (for messages).
+    vertices : (n, 3) float; faces : (m, 3) int; name : what it came from (for messages);
+    uv : (m, 3, 2) float or None, the source's own texture coordinates per face corner (OBJ
+    convention, v up); image : (h, w, 3) uint8 or None, the source's own texture (rows from the
+    top). Only ``--texture source`` uses the last two.
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     name: str = ""
+    uv: np.ndarray | None = None
+    image: np.ndarray | None = None
 
 
 @dataclass

@@ -58,8 +58,9 @@ def _resolve(urdf_path: Path, filename: str) -> Path:
                       f"to the URDF's folder, or put the mesh there")
 
 
-def load_mesh(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (n, 3) and faces (m, 3) of a mesh file (all its pieces in one mesh)."""
+def load_mesh(path: Path, where: str):
+    """Vertices (n, 3), faces (m, 3), and the mesh's own texture if it has one: corner UVs
+    (m, 3, 2) and image (h, w, 3) uint8, else None, None (all its pieces in one mesh)."""
     import trimesh
 
     try:
@@ -70,7 +71,16 @@ def load_mesh(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise AuthorError(f"{where}: the mesh {path} has no triangles; fix: give a mesh with "
                           f"faces (points and lines cannot be textured)")
-    return np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
+    faces = np.asarray(mesh.faces, np.int64)
+    uv = image = None
+    visual = mesh.visual
+    if getattr(visual, "uv", None) is not None and len(visual.uv) == len(mesh.vertices):
+        material = getattr(visual, "material", None)
+        img = getattr(material, "image", None) or getattr(material, "baseColorTexture", None)
+        if img is not None:
+            uv = np.asarray(visual.uv, float)[faces]
+            image = np.asarray(img.convert("RGB"), dtype=np.uint8)
+    return np.asarray(mesh.vertices, float), faces, uv, image
 
 
 def _origin(element) -> np.ndarray:
@@ -90,11 +100,12 @@ def _geometry(urdf_path: Path, element, link: str, kind: str, index: int):
     if g is None:
         return None
     if g.mesh is not None:
-        v, f = load_mesh(_resolve(urdf_path, g.mesh.filename), where)
+        v, f, uv, image = load_mesh(_resolve(urdf_path, g.mesh.filename), where)
         scale = g.mesh.scale
         if scale is not None:
             v = v * np.broadcast_to(np.asarray(scale, float), (3,))
-        return Mesh(transform_points(T, v), f, f"{name} ({Path(g.mesh.filename).name})")
+        return Mesh(transform_points(T, v), f, f"{name} ({Path(g.mesh.filename).name})", uv,
+                    image)
     if g.box is not None:
         size = np.asarray(g.box.size, float)
         prim, tm = ("box", size / 2), trimesh.creation.box(size)
@@ -161,7 +172,7 @@ def read_urdf(path: str | Path) -> SourceObject:
             m = _geometry(path, vis, name, "visual", k)
             if m is not None:
                 target.visuals.append(Mesh(transform_points(T_anchor, m.vertices), m.faces,
-                                           m.name))
+                                           m.name, m.uv, m.image))
         for k, col in enumerate(link.collisions or []):
             g = _geometry(path, col, name, "collision", k)
             if isinstance(g, Mesh):
