@@ -274,7 +274,8 @@ def _hull(v: np.ndarray, name: str):
     except Exception as err:  # qhull's errors come in several types
         log.debug("%s: no hull (%s)", name, err)
         return None
-    if hull.volume <= 0 or np.sort(np.ptp(hull.vertices, axis=0))[0] < MIN_THICKNESS:
+    # mean thickness of the hull: twice its volume over its area (a slab: its thickness)
+    if hull.volume <= 0 or 2.0 * hull.volume / hull.area < MIN_THICKNESS:
         return None
     return np.asarray(hull.vertices, float), np.asarray(hull.faces, np.int64)
 
@@ -383,16 +384,14 @@ def import_object(source: str | Path, out_dir: str | Path,
     # T_object_root as a similarity: p_object = s U p_root + t
     log.info("%s: scale %.4g, size at A %s cm", name, s, np.round(np.ptp(pa, 0) * 100, 1))
 
-    out_dir.mkdir(parents=True, exist_ok=True)
     xml_path = out_dir / f"{name}.xml"
     asset_dir = out_dir / "assets"
-    existing = [xml_path] + sorted(asset_dir.glob(f"{name}_*")) if asset_dir.is_dir() \
-        else [xml_path]
-    existing = [p for p in existing if p.exists()]
-    if existing and not config.overwrite:
-        raise AuthorError(f"{out_dir}: {len(existing)} files of an earlier import named {name!r} "
-                          f"are there ({existing[0].name}, ...); fix: give another --name, "
-                          f"another --out, or --overwrite")
+    refuse = ("fix: give another --name, another --out, or --overwrite to replace the files "
+              "of the earlier import")
+    if xml_path.exists() and not config.overwrite:
+        raise AuthorError(f"{xml_path} exists (an earlier import named {name!r}?); {refuse}")
+    created = not out_dir.exists()
+    out_dir.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=out_dir))
     try:
         writer = _SceneWriter(obj, name, config, s, U, t, tmp, notes)
@@ -414,6 +413,11 @@ def import_object(source: str | Path, out_dir: str | Path,
                 friction[k] *= HOLD_FRICTION_GROWTH
             notes.append(f"joints {sorted(creeping)} crept: friction loss raised to "
                          f"{ {k: round(friction[k], 3) for k in creeping} }")
+        clash = [asset_dir / p.name for p in (tmp / "assets").iterdir()
+                 if (asset_dir / p.name).exists()]
+        if clash and not config.overwrite:
+            raise AuthorError(f"{asset_dir}: {len(clash)} of the files this import writes are "
+                              f"there already ({clash[0].name}, ...); {refuse}")
         # whole or nothing: move the validated files into place
         asset_dir.mkdir(exist_ok=True)
         written = []
@@ -425,8 +429,12 @@ def import_object(source: str | Path, out_dir: str | Path,
             text = text.replace(f'<include file="{stage}"/>',
                                 f'<include file="{Path(stage).name}"/>')
         xml_path.write_text(text)
-    finally:
+    except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
+        if created and not any(out_dir.iterdir()):
+            out_dir.rmdir()  # nothing written: leave no empty folder behind
+        raise
+    shutil.rmtree(tmp, ignore_errors=True)
     for n in notes:
         log.info("%s: %s", name, n)
     return ImportResult(xml_path, written, s, qa, qb, notes)
