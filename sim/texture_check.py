@@ -8,7 +8,10 @@ the capture's distance, in both configurations), and measures per part (object l
 its image area that is *textured*: where the smaller eigenvalue of the image's structure tensor
 (Shi-Tomasi's corner measure, the local 2-D intensity variation SIFT's detector and descriptor
 need) exceeds a threshold. A part below :attr:`TextureCheckConfig.min_textured_share` raises
-:class:`TextureError` naming it and saying how to fix it. It takes seconds.
+:class:`TextureError` naming it and saying how to fix it. A part none of whose visible geoms has a
+UV-mapped texture is refused at once, before rendering (flat colour cannot pass). It takes
+about 10 s (8 renders) on a 2-core machine without GPU; the refusal of an untextured part about
+as long as compiling the scene.
 
 ``python -m sim.evaluate`` runs it before capturing; ``python -m sim.author import`` after
 writing a scene. ``check_texture(load_scene(path)).summary()`` prints the figures.
@@ -152,10 +155,6 @@ def check_texture(scene, config: TextureCheckConfig = TextureCheckConfig(),
     TextureError
         A part is too plain; the message names it, its figure and the fix.
     """
-    from sim import render
-    from sim.camera import intrinsics_matrix
-    from sim.views import object_bounding_sphere, ring_distance
-
     model = scene.model
     link_of = {b: i for i, li in enumerate(scene.links) for b in li.body_ids}
     labels = np.full(model.ngeom, -3, dtype=np.int64)
@@ -166,6 +165,19 @@ def check_texture(scene, config: TextureCheckConfig = TextureCheckConfig(),
             labels[g] = link_of[b]
             if int(model.geom_group[g]) <= 2:
                 geoms[link_of[b]].append(g)
+    untextured = {i: tuple(_geom_name(model, g) for g in geoms[i] if not _textured(model, g))
+                  for i in geoms}
+    bare = [i for i in geoms if geoms[i] and len(untextured[i]) == len(geoms[i])]
+    if raise_on_failure and bare:
+        # a part without any UV-mapped texture can only show flat colour and shading: refused
+        # at once, before any rendering
+        parts = tuple(PartTexture(scene.links[i].name, 0, 0.0, untextured[i], untextured[i])
+                      for i in bare)
+        raise TextureError(_message(scene, TextureReport(scene.name, parts, 0, config), parts))
+    from sim import render  # pyrender and OpenGL: only once rendering is needed
+    from sim.camera import intrinsics_matrix
+    from sim.views import object_bounding_sphere, ring_distance
+
     K = intrinsics_matrix(config.fx, config.fx, (config.width - 1) / 2, (config.height - 1) / 2)
     renderer = render.MjRenderer(model, geom_labels=labels)
     kernel = np.ones((2 * config.erode + 1, 2 * config.erode + 1), np.uint8)
@@ -191,30 +203,39 @@ def check_texture(scene, config: TextureCheckConfig = TextureCheckConfig(),
             n_views += 1
     parts = []
     for i, li in enumerate(scene.links):
-        plain = tuple(_geom_name(model, g) for g in geoms[i]
-                      if render._material_texture(model, int(model.geom_matid[g])) < 0
-                      or (int(model.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_MESH)
-                          and int(model.mesh_texcoordnum[int(model.geom_dataid[g])]) == 0))
         parts.append(PartTexture(li.name, int(area[i]),
                                  float(textured[i] / area[i]) if area[i] else 0.0,
-                                 tuple(_geom_name(model, g) for g in geoms[i]), plain))
+                                 tuple(_geom_name(model, g) for g in geoms[i]), untextured[i]))
     report = TextureReport(scene.name, tuple(parts), n_views, config)
     log.info("%s", report.summary())
     if raise_on_failure and report.failing:
-        raise TextureError(_message(scene, report))
+        raise TextureError(_message(scene, report, report.failing))
     return report
 
 
-def _message(scene, report: TextureReport) -> str:
+def _textured(model, g: int) -> bool:
+    """Whether a visible geom carries a 2D texture mapped by texture coordinates."""
+    mat = int(model.geom_matid[g])
+    roles = (mujoco.mjtTextureRole.mjTEXROLE_RGB, mujoco.mjtTextureRole.mjTEXROLE_RGBA)
+    if mat < 0 or all(int(model.mat_texid[mat, int(r)]) < 0 for r in roles):
+        return False
+    return not (int(model.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_MESH)
+                and int(model.mesh_texcoordnum[int(model.geom_dataid[g])]) == 0)
+
+
+def _message(scene, report: TextureReport, failing) -> str:
     c = report.config
-    lines = [f"{scene.path}: too little texture for SIFT features on "
-             f"{len(report.failing)} part(s) of the object, measured on {report.views} rendered "
-             f"views (need {c.min_textured_share:.0%} of each part's image area textured):"]
-    for p in report.failing:
+    how = (f"measured on {report.views} rendered views" if report.views else
+           "without rendering: they have no texture at all")
+    lines = [f"{scene.path}: too little texture for SIFT features on {len(failing)} part(s) of "
+             f"the object, {how} (need {c.min_textured_share:.0%} of each part's image area "
+             f"textured):"]
+    for p in failing:
         why = (f"its geoms {list(p.untextured_geoms)} have no UV-mapped 2D texture"
                if p.untextured_geoms else "its texture is too plain or too coarse at the "
                                           "capture distance")
-        lines.append(f"  part {p.link!r}: {p.textured_share:.0%} textured ({why})")
+        figure = f"{p.textured_share:.0%} textured" if report.views else "untextured"
+        lines.append(f"  part {p.link!r}: {figure} ({why})")
     lines.append(
         "fix: give every visible surface of the part its own non-repeating texture mapped by "
         "the mesh's UVs: import the object with `python -m sim.author import SOURCE --out DIR` "

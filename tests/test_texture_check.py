@@ -66,6 +66,7 @@ def test_a_plain_part_is_refused_by_name_in_seconds(tmp_path):
     assert "part 'pliers_moving'" in message and "part 'object'" not in message
     assert "pliers_moving_visual" in message  # the geom without a texture
     assert "fix:" in message and "python -m sim.author import" in message
+    assert "without rendering" in message  # no texture at all: refused before any render
     report = check_texture(load_scene(path), raise_on_failure=False)
     share = {p.link: p.textured_share for p in report.parts}
     assert share["pliers_moving"] < 0.25 < 0.6 < share["object"]
