@@ -384,3 +384,38 @@ def test_texture_source_keeps_the_meshes_own_textures_and_the_check_judges_them(
     with pytest.raises(AuthorError, match="no texture of its own.*--texture generated"):
         import_object(write_partnet_chest(tmp_path / "chest"), tmp_path / "out",
                       ImportConfig(texture="source"))
+
+
+def test_assets_unwrap_any_mesh_at_the_asked_texel_without_overlap(tmp_path):
+    """sim.assets.texture_mesh on a sphere: every triangle its own atlas region, its texels the
+    asked size (3-D area over UV area), the texture deterministic; bad input a clear error."""
+    import trimesh
+
+    from sim.assets import texture_mesh, unwrap
+
+    sphere = trimesh.creation.icosphere(3, 0.05)
+    part = texture_mesh(sphere.vertices, sphere.faces, tmp_path, "ball", texel=0.0008)
+    _assert_uv_charts_disjoint(part.obj)
+    mesh = unwrap(sphere.vertices, sphere.faces, 0.0008)
+    assert mesh.texel == 0.0008 and (mesh.width, mesh.height) == (part.width, part.height)
+    uv = mesh.uv * [mesh.width, mesh.height]
+    p = mesh.positions[mesh.faces]
+    area3 = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    t = uv[mesh.faces]
+    e1, e2 = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
+    area_uv = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    assert np.median(np.sqrt(area3 / area_uv)) == pytest.approx(0.0008, rel=0.1)
+    np.testing.assert_allclose(mesh.positions[mesh.faces], sphere.vertices[sphere.faces])
+    again = texture_mesh(sphere.vertices, sphere.faces, tmp_path / "again", "ball",
+                         texel=0.0008)
+    assert again.obj.read_bytes() == part.obj.read_bytes()
+    assert again.png.read_bytes() == part.png.read_bytes()
+    # a coarser texel where the atlas would be too large
+    big = unwrap(sphere.vertices * 20, sphere.faces, 0.0008, max_size=1024)
+    assert big.texel > 0.0008 and max(big.width, big.height) <= 1024
+    with pytest.raises(ValueError, match=r"vertices of shape \(n >= 3, 3\)"):
+        unwrap(np.zeros((4, 2)), sphere.faces)
+    with pytest.raises(ValueError, match="faces index vertices"):
+        unwrap(sphere.vertices[:10], sphere.faces)
+    with pytest.raises(ValueError, match="degenerate"):
+        unwrap(np.zeros((3, 3)), np.array([[0, 1, 2]]))
