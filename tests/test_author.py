@@ -86,6 +86,12 @@ def test_partnet_urdf_becomes_a_scene_in_a_folder_of_its_own(chest):
     assert got == {"joint_0": ("prismatic", "object", "link_0"),
                    "joint_1": ("revolute", "object", "link_1")}
     assert any("fixed joint 'joint_2'" in n for n in res.notes)
+    # collisions: one oriented box per panel (the default), where the arm finds grasp points
+    model = scene.model
+    col = [g for g in range(model.ngeom) if model.geom_group[g] == 3
+           and any(int(model.geom_bodyid[g]) in li.body_ids for li in scene.links)]
+    assert len(col) == len(CHEST_CARCASS) + len(CHEST_LID) + len(CHEST_DRAWER)
+    assert all(model.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX for g in col)
     # configurations: closed, then the drawer out 10 cm and the lid up 30 deg
     assert scene.configuration("a") == {"joint_0": 0.0, "joint_1": 0.0}
     assert scene.joint("joint_0").value_b == pytest.approx(0.10)
@@ -232,8 +238,11 @@ def test_given_configurations_are_used_and_checked(tmp_path):
     urdf = write_partnet_chest(tmp_path / "src")
     res = import_object(urdf, tmp_path / "out", ImportConfig(
         name="ajar", config_a={"joint_1": math.radians(10)},
-        config_b={"joint_1": math.radians(40), "joint_0": 0.0}))
+        config_b={"joint_1": math.radians(40), "joint_0": 0.0}, collision="hull"))
     scene = load_scene(res.scene)
+    hulls = [g for g in range(scene.model.ngeom) if scene.model.geom_group[g] == 3
+             and scene.model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH]
+    assert len(hulls) == len(CHEST_CARCASS) + len(CHEST_LID) + len(CHEST_DRAWER)
     assert scene.joint("joint_1").value_a == pytest.approx(math.radians(10))
     assert scene.joint("joint_1").motion == pytest.approx(math.radians(30))
     assert scene.joint("joint_0").static  # asked to stay shut

@@ -65,6 +65,9 @@ def parser() -> argparse.ArgumentParser:
     imp.add_argument("--texel", type=float, default=default.texel,
                      help=f"texel size of the generated textures, m (default {default.texel:g})")
     imp.add_argument("--seed", type=int, default=default.seed, help="texture seed")
+    imp.add_argument("--collision", choices=("box", "hull"), default=default.collision,
+                     help="collision shape of each mesh: box (default; the oriented box around "
+                          "it, where the arm's default grasp points lie) or hull (convex hull)")
     imp.add_argument("--texture", choices=("generated", "source"), default=default.texture,
                      help="generated (default): every part UV-unwrapped and given a new "
                           "non-repeating texture; source: keep the meshes' own UVs and images "
@@ -89,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
                               body=args.body, config_a=dict(args.config_a),
                               config_b=dict(args.config_b), density=args.density,
                               texel=args.texel, seed=args.seed, texture=args.texture,
-                              arm=args.arm,
+                              collision=args.collision, arm=args.arm,
                               overwrite=args.overwrite)
     except ValueError as err:
         p.error(str(err))

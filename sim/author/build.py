@@ -11,9 +11,9 @@ What :func:`import_object` does, in order (see ``scenes/README.md`` for the conv
    the table top; refuse an object that would overhang the table;
 5. texture every link: its visible meshes merged, UV-unwrapped and given their own non-repeating
    texture (:func:`sim.assets.texture_mesh`);
-6. collision shapes: each collision mesh's convex hull (a box around it where the hull is flat),
-   primitives kept, all with :attr:`ImportConfig.density`; contacts between the object's links
-   excluded (the joints guide them);
+6. collision shapes: each collision mesh's oriented box (or its convex hull, a box where the
+   hull is flat), primitives kept, all with :attr:`ImportConfig.density`; contacts between the
+   object's links excluded (the joints guide them);
 7. joint friction and damping from the gravity load each joint carries at A and B;
 8. write ``OUT/NAME.xml`` and ``OUT/assets/NAME_*``, validate the scene
    (:func:`sim.scene.load_scene`, a second of physics in A and in B without MuJoCo warnings) and
@@ -89,6 +89,8 @@ UP_AXES = {"+z": np.eye(3), "-z": np.diag([1.0, -1.0, -1.0]),
 
 #: How the parts are textured (:attr:`ImportConfig.texture`).
 TEXTURES = ("generated", "source")
+#: Collision shapes of meshes (:attr:`ImportConfig.collision`).
+COLLISIONS = ("box", "hull")
 
 
 @dataclass(frozen=True)
@@ -122,6 +124,10 @@ class ImportConfig:
     """wanted texel size (m) of the generated textures"""
     seed: int = SEED
     """master seed of the textures (each part's seed derives from it and the part's name)"""
+    collision: str = "box"
+    """``box``: each collision mesh becomes the oriented box around it (the simple primitives
+    the bundled scenes use; the arm's default grasp points lie on box and cylinder faces);
+    ``hull``: its convex hull (closer to a round shape; no default grasp points on it)"""
     texture: str = "generated"
     """``generated``: every link's meshes UV-unwrapped and given a new non-repeating texture
     (what SfM needs); ``source``: keep each visual mesh's own UVs and texture image (a scanned
@@ -138,6 +144,8 @@ class ImportConfig:
             raise ValueError(f"size and scale must be positive, got {self.size}, {self.scale}")
         if not self.density > 0 or not self.texel > 0:
             raise ValueError("density and texel must be positive")
+        if self.collision not in COLLISIONS:
+            raise ValueError(f"collision must be one of {COLLISIONS}, got {self.collision!r}")
         if self.texture not in TEXTURES:
             raise ValueError(f"texture must be one of {TEXTURES}, got {self.texture!r}")
 
@@ -551,7 +559,7 @@ class _SceneWriter:
                     k += 1
                     continue
                 v = self._to_body(link_name, piece.vertices)
-                hull = _hull(v, piece.name)
+                hull = _hull(v, piece.name) if self.config.collision == "hull" else None
                 if hull is None:
                     half, T = _box_around(v)
                     geoms.append(self._primitive(body, k, "box", half, T, density))
