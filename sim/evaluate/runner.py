@@ -85,6 +85,7 @@ from sim.evaluate.stages import (
     versions,
 )
 from sim.scene import load_scene
+from sim.texture_check import check_texture
 
 log = logging.getLogger(__name__)
 
@@ -106,6 +107,9 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
     try:
         scene = load_scene(name)
         result["scene"] = scene.name
+        stage = "texture_check"  # a part too plain for features fails here, in seconds
+        check_texture(scene)
+        stage = "load"
         scene = perturb.apply_motion(scene, ev.perturb.motion_deg, ev.perturb.motion_mm)
         result["scene_file"] = str(scene.path)
         scene_hash = cache.scene_hash(scene.path)
