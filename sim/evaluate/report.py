@@ -149,7 +149,9 @@ def manipulation_lines(man: dict | None) -> list[str]:
             f"{head}: {_f(r['achieved'], 2)} of {_f(r['requested'], 2)} {r['unit']} "
             f"({_f(100 * r['relative_error'], 1)}% off); peak force {_f(r['peak_force_n'], 1)} N "
             f"(limit {_f(r['force_limit_n'], 1)} N; the true joint needs "
-            f"{_f(r.get('needed_force_n'), 2)} N), grasp {'LOST' if r['grasp_lost'] else 'held'}"
+            f"{_f(r.get('needed_force_n'), 2)} N, at the gates' tolerance "
+            f"{_f(r.get('force_at_gate_tolerance_n'), 2)} N), grasp "
+            f"{'LOST' if r['grasp_lost'] else 'held'}"
             f"; grasp point {r['grasp_visibility']}"
             f"{' (hidden from the camera)' if r['grasp_hidden'] else ''} on {r['grasp_body']}")
     return out

@@ -389,9 +389,10 @@ class PlanningWorld:
                 out.append(c)
         return out
 
-    def arm_contacts(self, q, grasp_point=None, moving_links=()) -> list[str]:
+    def arm_contacts(self, q, grasp_point=None, grasp_links=(), moving_links=()) -> list[str]:
         """Contacts of the arm at configuration ``q`` in the plan's world. With ``grasp_point``,
-        the gripper touching the model within ``gripper_contact_radius`` of it is allowed; the
+        the gripper touching the grasped link (a model link of ``grasp_links``) within
+        ``gripper_contact_radius`` of it is allowed -- never another link, nor the stage; the
         model links in ``moving_links`` (the grasped link and those it carries, during the
         motion: they move with the gripper) are not obstacles."""
         m, d = self.model, self.data
@@ -408,7 +409,7 @@ class PlanningWorld:
             if other in self.model_geoms and self.model_geoms[other] in moving:
                 continue
             if (grasp_point is not None and arm_b in self.gripper_bodies
-                    and other in self.model_geoms
+                    and self.model_geoms.get(other) in set(grasp_links)
                     and np.linalg.norm(d.geom_xpos[other] - grasp_point)
                     < self.config.gripper_contact_radius):
                 continue
@@ -471,7 +472,8 @@ def plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, 
         if not pre.success:
             reasons.append(f"roll {roll}: pre-grasp unreachable")
             continue
-        hits = pw.arm_contacts(ik.q, grasp_point=cand.point) or pw.arm_contacts(pre.q)
+        hits = (pw.arm_contacts(ik.q, grasp_point=cand.point, grasp_links=moving_links)
+                or pw.arm_contacts(pre.q))
         if hits:
             reasons.append(f"roll {roll}: arm touches {hits[0]}")
             continue
