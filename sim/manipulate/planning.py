@@ -53,8 +53,10 @@ class PlanningConfig:
     sphere_radius: float = 0.004
     """radius of a model sphere (m): with 6 mm voxels neighbouring spheres overlap, so rays do
     not slip through a surface"""
-    candidate_voxel: float = 0.01
-    """grasp candidates: one per voxel of this size (m) of the child link's points"""
+    candidate_voxel: float = 0.006
+    """grasp candidates: one per voxel of this size (m) of the child link's points (1 cm voxels
+    on scissors' 3 mm blades mixed top and side normals: 20 candidates, 3 usable, none
+    graspable; 6 mm: 103, 20 usable)"""
     min_normal_agreement: float = 0.8
     """a candidate's normal is the mean of its voxel's normals; shorter than this (they
     disagree: an edge or noise) and the voxel is no candidate"""
