@@ -600,10 +600,11 @@ def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinem
 
     For each ring (full rings, then top rings) the candidates of :func:`_candidates` are tried in
     order: a candidate is probed at :data:`PROBE_VIEWS` evenly spread views (few IK restarts,
-    stopping at the first failure), then solved in full (:func:`solve_views`) and the moves into
-    its views checked (:func:`check_paths`); the first whose views are all reachable, and whose
-    moves touch nothing, is taken. If none is, the ring with the most reachable views is taken
-    and its other views are reported unreachable.
+    stopping at the first failure), then solved view by view up to its first unreachable view
+    (:func:`solve_views`) and the moves into its views checked (:func:`check_paths`); the first
+    whose views are all reachable, and whose moves touch nothing, is taken. If none is, the
+    candidates that passed their probe are solved in full (second chances included) and the
+    ring with the most reachable views is taken; its other views are reported unreachable.
 
     Parameters
     ----------
@@ -633,6 +634,7 @@ def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinem
                                            _ring_phases(config), strict=True)):
         top = i >= n_full
         best: tuple[int, Ring, list[View]] | None = None
+        screened: list[tuple[Ring, list[View]]] = []  # passed the probe, not whole
         tried = 0
         for el_deg, d, fill in _candidates(config, desired, radius, K, width, height, lowest,
                                            highest):
@@ -656,15 +658,30 @@ def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinem
                 if best is None:
                     best = (-1, ring, members)
                 continue
-            solve_views(model, data, kin, members, seed=config.seed, q_start=q_last)
-            check_paths(model, data, kin, members, q_last)
-            n_ok = sum(v.reachable for v in members)
-            if best is None or n_ok > best[0]:
-                best = (n_ok, ring, members)
-            if n_ok == len(members):
-                break
-            log.debug("ring %d at %.1f deg, %.3f m: %d of %d views reachable", i, el_deg, d,
-                      n_ok, len(members))
+            # screened in full, stopping at its first unreachable view: a ring is taken only
+            # whole, and a failing view costs every IK restart, so solving the rest of a ring
+            # that already failed (as this did until 2026-11) spent most of a large object's
+            # plan (drawer: 42 candidates for its lowest ring)
+            solve_views(model, data, kin, members, seed=config.seed, q_start=q_last,
+                        stop_at_first_failure=True)
+            if all(v.reachable for v in members):
+                check_paths(model, data, kin, members, q_last)
+                if all(v.reachable for v in members):
+                    best = (len(members), ring, members)
+                    break
+            log.debug("ring %d at %.1f deg, %.3f m: not every view reachable", i, el_deg, d)
+            screened.append((ring, members))
+        else:
+            # no candidate is whole: the one with the most reachable views, each solved in full
+            # (with its second chances from the other side)
+            for ring_c, members_c in screened:
+                solve_views(model, data, kin, members_c, seed=config.seed, q_start=q_last)
+                check_paths(model, data, kin, members_c, q_last)
+                n_ok = sum(v.reachable for v in members_c)
+                if best is None or n_ok > best[0]:
+                    best = (n_ok, ring_c, members_c)
+                if n_ok == len(members_c):
+                    break
         n_ok, ring, members = best
         if n_ok < 0:
             # no candidate passed its probe: solve the preferred one in full, to report why

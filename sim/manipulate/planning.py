@@ -77,6 +77,11 @@ class PlanningConfig:
     occlusion_margin: float = 0.003
     """a point is hidden when the camera ray meets a surface this much (m) before the point's
     own sphere"""
+    hidden_margin: float = 0.006
+    """a point counts as hidden only when the camera rays to it and to four points this far (m)
+    around it, lifted this far off the surface, are all blocked: a point at the edge of what
+    the camera sees (a back face seen over a panel's rim) is hidden from the model's spheres
+    and visible on the true object by a hair, and is called visible"""
     gripper_contact_radius: float = 0.03
     """at the grasp pose the gripper may touch the model within this distance (m) of the grasp
     point (it is meant to): any other contact of the arm is a collision"""
@@ -259,6 +264,14 @@ def _inside_geom(model, data, g: int, p: np.ndarray, margin: float = 1e-4) -> bo
     return False
 
 
+def _tangents(normal) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors orthogonal to ``normal`` and to each other. : (3,), (3,)"""
+    ref = np.array([0.0, 0.0, 1.0]) if abs(normal[2]) < 0.9 else np.array([1.0, 0, 0])
+    u = np.cross(normal, ref)
+    u /= np.linalg.norm(u)
+    return u, np.cross(normal, u)
+
+
 class PlanningWorld:
     """The stage and the arm, with the object as the robot knows it (see the module docstring).
 
@@ -342,7 +355,8 @@ class PlanningWorld:
     def classify_visibility(self, q, candidates) -> list[GraspCandidate]:
         """Each candidate hidden or visible from the wrist camera at arm configuration ``q``:
         hidden when outside the image, or when the ray from the camera centre meets a surface
-        of the plan (the model, the stage, the arm) before the point."""
+        of the plan (the model, the stage, the arm) before the point and before the points
+        around it (:attr:`PlanningConfig.hidden_margin`; the first ray's occluder is named)."""
         m, d = self.model, self.data
         cam = self.kin.spec.prefix + self.kin.spec.camera
         K, (w, h) = mujoco_camera_intrinsics(m, cam)
@@ -351,23 +365,36 @@ class PlanningWorld:
         mujoco.mj_forward(m, d)
         out = []
         geomid = np.zeros(1, dtype=np.int32)
+        margin = self.config.hidden_margin
+
+        def blocked(p) -> bool:
+            ray = p - T[:3, 3]
+            dist = float(np.linalg.norm(ray))
+            hit = mujoco.mj_ray(m, d, T[:3, 3], ray / dist, self._groups, 1, self.flange_body,
+                                geomid)
+            return 0 <= hit < dist - self.occlusion_tolerance
+
         for c in candidates:
             pc = T[:3, :3].T @ (c.point - T[:3, 3])
             uv = K @ pc
             if pc[2] <= 0 or not (0 <= uv[0] / uv[2] < w and 0 <= uv[1] / uv[2] < h):
                 out.append(GraspCandidate(c.point, c.normal, True, "outside the image"))
                 continue
-            ray = c.point - T[:3, 3]
-            dist = float(np.linalg.norm(ray))
-            hit = mujoco.mj_ray(m, d, T[:3, 3], ray / dist, self._groups, 1, self.flange_body,
-                                geomid)
-            if 0 <= hit < dist - self.occlusion_tolerance:
-                g = int(geomid[0])
-                what = ("the model" if g in self.model_geoms else
-                        mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom {g}")
-                out.append(GraspCandidate(c.point, c.normal, True, f"occluded by {what}"))
-            else:
+            if not blocked(c.point):
                 out.append(GraspCandidate(c.point, c.normal, False, "visible"))
+                continue
+            g = int(geomid[0])
+            what = ("the model" if g in self.model_geoms else
+                    mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom {g}")
+            if margin > 0:
+                u, v = _tangents(c.normal)
+                lifted = c.point + margin * c.normal
+                around = [lifted] + [lifted + margin * t for t in (u, -u, v, -v)]
+                if not all(blocked(p) for p in around):
+                    out.append(GraspCandidate(c.point, c.normal, False,
+                                              f"visible at the edge of {what}"))
+                    continue
+            out.append(GraspCandidate(c.point, c.normal, True, f"occluded by {what}"))
         return out
 
     def clear(self, candidates) -> list[GraspCandidate]:
@@ -378,10 +405,7 @@ class PlanningWorld:
         start = max(1e-3, 1.5 * (self.occlusion_tolerance - cfg.occlusion_margin))
         out = []
         for c in candidates:
-            ref = np.array([0.0, 0.0, 1.0]) if abs(c.normal[2]) < 0.9 else np.array([1.0, 0, 0])
-            u = np.cross(c.normal, ref)
-            u /= np.linalg.norm(u)
-            v = np.cross(c.normal, u)
+            u, v = _tangents(c.normal)
             starts = [c.point + start * c.normal]
             starts += [c.point + (cfg.grasp_standoff + 1e-3) * c.normal + cfg.approach_radius * w
                        for w in (u, -u, v, -v)]
