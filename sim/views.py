@@ -405,25 +405,47 @@ def clearance_violations(model: mujoco.MjModel, data: mujoco.MjData, links: set[
     clearance : float
         Metres.
     """
-    arm_geom = np.isin(model.geom_bodyid, sorted(links))
+    # called ~10^5 times by a large object's plan: the body masks once per model and set
+    is_link, is_robot = _body_masks(model, links, robot_body_ids)
+    arm_geom = is_link[model.geom_bodyid]
     saved = model.geom_margin[arm_geom].copy()
     model.geom_margin[arm_geom] = np.maximum(saved, clearance)
     try:
         mujoco.mj_kinematics(model, data)
         mujoco.mj_collision(model, data)
-        out = []
-        for c in data.contact[: data.ncon]:
-            g1, g2 = int(c.geom[0]), int(c.geom[1])
-            b1, b2 = int(model.geom_bodyid[g1]), int(model.geom_bodyid[g2])
-            if b1 not in links and b2 not in links:
-                continue
-            limit = 0.0 if (b1 in robot_body_ids and b2 in robot_body_ids) else clearance
-            if c.dist < limit:
-                out.append(f"{_geom_name(model, g1)}/{_geom_name(model, g2)} "
-                           f"({c.dist * 1e3:.1f} mm)")
+        n = data.ncon
+        if n == 0:
+            return []
+        geoms = data.contact.geom[:n]
+        dist = data.contact.dist[:n]
+        bodies = model.geom_bodyid[geoms]
+        near = is_link[bodies].any(axis=1)
+        limit = np.where(is_robot[bodies].all(axis=1), 0.0, clearance)
+        out = [f"{_geom_name(model, int(g1))}/{_geom_name(model, int(g2))} ({d * 1e3:.1f} mm)"
+               for (g1, g2), d in zip(geoms[near & (dist < limit)],
+                                      dist[near & (dist < limit)], strict=True)]
     finally:
         model.geom_margin[arm_geom] = saved
     return sorted(set(out))
+
+
+_BODY_MASKS: dict = {}
+
+
+def _body_masks(model: mujoco.MjModel, links: set[int], robot_body_ids: set[int]
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Boolean masks over the bodies of ``model``: the arm links, the robot's bodies."""
+    key = (id(model), model.nbody, frozenset(links), frozenset(robot_body_ids))
+    masks = _BODY_MASKS.get(key)
+    if masks is None:
+        if len(_BODY_MASKS) > 64:
+            _BODY_MASKS.clear()
+        is_link = np.zeros(model.nbody, dtype=bool)
+        is_link[sorted(links)] = True
+        is_robot = np.zeros(model.nbody, dtype=bool)
+        is_robot[sorted(robot_body_ids)] = True
+        masks = _BODY_MASKS[key] = (is_link, is_robot)
+    return masks
 
 
 def _solve_one(model, data, kin, view: View, q_prev, *, seed: int, restarts: int,
