@@ -6,12 +6,12 @@ and never sees ground truth.
 
 import logging
 
-__version__ = "0.1.0"
+from artrecon._version import __version__
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 
 # The public entry point: artrecon.reconstruct(images_a, images_b, ...) -> ArticulatedModel.
-# Imported last (it needs __version__); it shadows the submodule name on purpose.
+# It shadows the submodule name on purpose.
 from artrecon.reconstruct import reconstruct  # noqa: E402
 
 __all__ = ["reconstruct", "__version__"]

@@ -66,7 +66,12 @@ class AssignConfig:
     cost_no_fit: float = 1.0
     cost_violation: float = 1.0
     cost_photo: float = 1.0
-    """Times ``(1 - NCC) / 2``; only where every hypothesis has a patch in both configurations."""
+    """Times ``(1 - NCC) / 2``, for every hypothesis with a patch in both configurations ..."""
+    photo_unknown: float = 0.35
+    """... and a hypothesis whose counterpart is hidden (no patch to compare) costs this share of
+    ``cost_photo`` where another has one: what NCC 0.3 costs. A patch that matches beats not
+    knowing; one that clearly does not (a drawer's floor where the drawer slid away over it)
+    loses to it."""
     cost_match: float = 0.3
     """Cost of disagreeing with the nearest segmented match's link ..."""
     match_reach: float = 10.0
@@ -246,6 +251,9 @@ class _Evidence:
                                   for q, thr in zip(self.moved, self.threshold, strict=True)])
         violations = np.zeros((K, n))
         ncc = np.full((K, n), np.nan)
+        #: hypothesis k's counterpart is hidden from every camera of the other configuration
+        #: (behind what they saw, never in front of it): its lack of fit says nothing
+        self.hidden = np.zeros((K, n), bool)
         if surface_src is not None and surface_dst is not None:
             vis_src, _ = surface_src.status(src, config.depth_tolerance, floor)
             best_src = surface_src.best_view(vis_src, src, src_normals)
@@ -260,15 +268,17 @@ class _Evidence:
             for k, (T, q) in enumerate(zip(transforms, self.moved, strict=True)):
                 vis, bad = surface_dst.status(q, config.depth_tolerance, floor)
                 violations[k] = bad.sum(0)
+                self.hidden[k] = ~vis.any(0) & ~bad.any(0)
                 best = surface_dst.best_view(vis, q, src_normals @ T.rotation.T)
                 patch = surface_dst.sample(best, T.apply(G.reshape(-1, 3)).reshape(G.shape))
                 ok = (best_src >= 0) & (best >= 0)
                 ncc[k, ok] = _ncc(patch_src[ok], patch[ok])
         U = config.cost_violation * np.minimum(violations, config.violations_saturate) \
             / config.violations_saturate
-        all_photo = np.isfinite(ncc).all(0)
-        self.photo_share = float(np.mean(all_photo))
-        U = U + np.where(all_photo, config.cost_photo * (1.0 - np.nan_to_num(ncc)) / 2.0, 0.0)
+        has = np.isfinite(ncc)
+        self.photo_share = float(np.mean(has.all(0)))
+        photo = np.where(has, (1.0 - np.nan_to_num(ncc)) / 2.0, config.photo_unknown)
+        U = U + config.cost_photo * np.where(has.any(0), photo, 0.0)
         src_spacing = float(np.median(cKDTree(src).query(src, k=2)[0][:, 1]))
         prior = config.cost_match * np.exp(-d_match / (config.match_reach * src_spacing))
         self.base = U + prior[None, :] * (np.arange(K)[:, None] != self.nearest[None, :])
@@ -291,7 +301,7 @@ class _Evidence:
         if self.K == 1:
             return np.zeros(self.n, int)
         fits = self.fits(dst_labels)
-        U = self.base + self.config.cost_no_fit * (~fits & fits.any(0))
+        U = self.base + self.config.cost_no_fit * (~fits & fits.any(0) & ~self.hidden)
         log.debug("assign: %d points, fit by one link %.0f%%, several %.0f%%, none %.0f%%; "
                   "patches compared %.0f%%", self.n, 100 * np.mean(fits.sum(0) == 1),
                   100 * np.mean(fits.sum(0) > 1), 100 * np.mean(fits.sum(0) == 0),

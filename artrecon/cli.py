@@ -1,5 +1,6 @@
-"""Command line: ``artrecon reconstruct DIR_A DIR_B --out DIR`` and
-``artrecon export MODEL --format mjcf|urdf|glb|ply --out PATH``.
+"""Command line: ``artrecon reconstruct DIR_A DIR_B --out DIR``,
+``artrecon register MODEL_DIR --camera-poses POSES.json [--image IMG --flange-pose POSE.json]``
+and ``artrecon export MODEL --format mjcf|urdf|glb|ply --out PATH``.
 
 Exit status 0 on success, 2 on bad input (also when nothing moved between the two image sets:
 artrecon.errors.NoMotionError), 1 when a stage fails (also when the evidence for a joint
@@ -45,8 +46,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true", help="no progress bars, warnings only")
     r.set_defaults(handler=_run_reconstruct)
     from artrecon.export import add_export_parser
+    from artrecon.register.cli import add_register_parser
 
     add_export_parser(sub)
+    add_register_parser(sub)
     return p
 
 

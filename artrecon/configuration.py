@@ -27,10 +27,12 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pycolmap
+from threadpoolctl import threadpool_limits
 
-from artrecon import __version__
+from artrecon._version import __version__
 from artrecon.dense import DenseConfig, DensePoints, RegionConfig, dense_points, object_region
 from artrecon.errors import InputError, ReconstructionError
 from artrecon.io import (
@@ -158,7 +160,21 @@ def reconstruct_configuration(image_set: ImageSet, out_dir: str | Path,
         SfM failed, the SfM cameras disagree with a capture's reference poses, or nothing of
         the object is left after removing the background.
     """
-    out_dir = Path(out_dir)
+    # A and B run side by side (two processes): one core each, for BLAS and OpenCV alike
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        with threadpool_limits(limits=1, user_api="blas"):
+            return _reconstruct_configuration(image_set, Path(out_dir), intrinsics, poses,
+                                              sfm_config, dense_config, region_config, seed,
+                                              which, progress)
+    finally:
+        cv2.setNumThreads(threads)
+
+
+def _reconstruct_configuration(image_set, out_dir: Path, intrinsics, poses, sfm_config,
+                               dense_config, region_config, seed: int, which: str,
+                               progress: bool) -> Configuration:
     sfm_config = sfm_config or SfMConfig()
     dense_config = dense_config or DenseConfig()
     region_config = region_config or RegionConfig()

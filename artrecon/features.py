@@ -331,10 +331,10 @@ def guided_matches(transforms, radii, cand_a: PointDescriptors, cand_b: PointDes
                     best_sim[i], best_b[i], best_link[i] = sim, j, k
                 elif sim > second[i]:
                     second[i] = sim
-    # an A point with no candidate has -inf - -inf = nan here (not kept: its best_sim fails
-    # the first test); without errstate numpy printed a RuntimeWarning to the user
-    with np.errstate(invalid="ignore"):
-        ok = (best_sim >= config.min_similarity) & (best_sim - second >= config.margin)
+    # no second candidate at all (-inf): unambiguous
+    gap = np.where(np.isfinite(second), best_sim - np.where(np.isfinite(second), second, 0.0),
+                   np.inf)
+    ok = (best_sim >= config.min_similarity) & (gap >= config.margin)
     ia = np.flatnonzero(ok)
     # one-to-one: a B point claimed twice goes to the more similar A point
     order = ia[np.argsort(-best_sim[ia], kind="stable")]

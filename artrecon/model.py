@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from artrecon._version import __version__
 from artrecon.errors import InputError
 from artrecon.io import write_text_atomic
 from artrecon.procrustes import Similarity
@@ -347,8 +348,6 @@ class ArticulatedModel:
         version = d.get("version")
         if isinstance(version, int) and not isinstance(version, bool) and \
                 version > FORMAT_VERSION:
-            from artrecon import __version__
-
             raise InputError(
                 f"the model is in format version {version}, written by a newer artrecon; this "
                 f"artrecon ({__version__}) reads version {FORMAT_VERSION}: upgrade artrecon "

@@ -42,7 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
-from artrecon import __version__, workers
+from artrecon import workers
+from artrecon._version import __version__
 from artrecon.assign import AssignConfig, assign_dense_to_links, views_from_sfm
 from artrecon.confidence import (
     ConfidenceConfig,

@@ -162,6 +162,7 @@ RANGES: dict[str, Range | Choice] = {
     "assign.cost_no_fit": Range(0, 1000, "a cost"),
     "assign.cost_violation": Range(0, 1000, "a cost"),
     "assign.cost_photo": Range(0, 1000, "a cost"),
+    "assign.photo_unknown": Range(0, 1, "a share of cost_photo, as (1 - NCC) / 2"),
     "assign.cost_match": Range(0, 1000, "a cost"),
     "assign.match_reach": Range(0, 1e6, "point spacings", **_OPEN),
     "assign.smoothness": Range(0, 1000, "a Potts weight"),

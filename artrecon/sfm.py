@@ -61,9 +61,11 @@ class SfMConfig:
     """SIFT features per image (COLMAP default 8192; 4096 halves matching time at 640x480)."""
     max_image_size: int = 1600
     """Longer image side used for extraction; larger photos are downscaled."""
-    extractor: str = "colmap"
-    """SIFT implementation: ``"colmap"`` (COLMAP's, on the CPU) or ``"opencv"`` (OpenCV's
-    ``SIFT_create``, written into the same COLMAP database; see :func:`extract`)."""
+    extractor: str = "opencv"
+    """SIFT implementation: ``"opencv"`` (OpenCV's ``SIFT_create``, written into the same COLMAP
+    database; see :func:`extract`) or ``"colmap"`` (COLMAP's, on the CPU). Measured on a pliers
+    capture (121 images, one core, under load): COLMAP's 140 s against OpenCV's 63 s, for 14351
+    and 13406 triangulated points."""
     opencv_contrast: float = 0.02
     """OpenCV SIFT's contrast threshold (its default 0.04 keeps about 60% of the keypoints of
     COLMAP's peak threshold on the bundled scenes; 0.02 about as many)."""

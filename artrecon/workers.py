@@ -34,10 +34,14 @@ def submit(pool: ProcessPoolExecutor, fn, *args, **kwargs) -> Future:
 
 
 def stop(pool: ProcessPoolExecutor) -> None:
-    """Terminate a pool's worker processes (SIGTERM: they end without a word) and shut it down
-    without waiting for their tasks; used when the parent was interrupted. Their partial
-    output is the parent's to discard (work folders, removed by the next run if not now)."""
+    """Kill a pool's worker processes and shut it down without waiting for their tasks; used
+    when the parent was interrupted. Their partial output is the parent's to discard (work
+    folders, removed by the next run if not now).
+
+    SIGKILL, not SIGTERM: importing pycolmap installs glog's failure signal handler, which
+    answers SIGTERM with a 30-line native stack dump on stderr (the worker ends no cleaner
+    for it: Python has no SIGTERM handler of its own here)."""
     for process in list((getattr(pool, "_processes", None) or {}).values()):
         if process.is_alive():
-            process.terminate()
+            process.kill()
     pool.shutdown(wait=False, cancel_futures=True)

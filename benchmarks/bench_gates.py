@@ -1,23 +1,28 @@
 """The main job's verdict over seeds: so that one lucky seed cannot pass a scene (issue 19).
 
-    python benchmarks/bench_gates.py [SCENE ...] [--seeds 0 1 2] [--out runs/bench_gates]
-                                     [--repeat SEED]
+    python benchmarks/bench_gates.py [SCENE ...] [--seeds 0-2] [--out runs/bench_gates]
+                                     [--repeat SEED] [--jobs N | --backend ray [--address A]]
 
 Runs ``python -m sim.evaluate``'s default configuration (:class:`sim.evaluate.EvalConfig` at its
-defaults but for the seed) on every bundled scene (or those named) for each seed, and writes
-``bench_gates.md`` and ``bench_gates.json`` into ``--out``: a table scene x seed x figure (the
-worst joint's axis angle, axis position and state error, segmentation, points off the object,
-manipulation error, tree) with each run's verdict, and per scene whether it passed on every
-seed. ``--repeat SEED`` evaluates that seed a second time in a fresh folder and reports whether
-the figures are the same (the same inputs must give the same model).
+defaults but for the seed) on every bundled scene (or those named) for each seed, through the
+sweep runner (:mod:`sim.evaluate.sweep`: ``--jobs N`` worker processes or a Ray cluster), and
+writes ``bench_gates.md`` and ``bench_gates.json`` into ``--out``: a table scene x seed x figure
+(the worst joint's axis angle, axis position and state error, segmentation, points off the
+object, manipulation error, tree) with each run's verdict, and per scene whether it passed on
+every seed; the sweep's own merged report (``results.md``: median, worst and spread over seeds,
+``sweep_errors.png``) beside it. ``--repeat SEED`` evaluates that seed a second time in a fresh
+folder (its own stage cache) and reports whether the figures are the same (the same inputs must
+give the same model).
 
-Each seed has its own folder ``OUT/seed<k>`` whose stage cache serves a re-run; delete it for
-fresh figures. Figures only, no asserts: the gates are asserted by tests/test_gates.py.
+Runs share the stage cache ``OUT/cache``; runs already recorded in ``OUT`` with the same code
+are not redone (``--redo`` runs them again; delete ``OUT`` for fresh stages too). Figures only,
+no asserts: the gates are asserted by tests/test_gates.py.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -25,7 +30,7 @@ from pathlib import Path
 import sim  # noqa: F401
 from artrecon.io import write_json_atomic, write_text_atomic
 from sim import evaluate
-from sim.evaluate import gates
+from sim.evaluate import gates, sweep
 from sim.scene import list_scenes
 
 
@@ -76,33 +81,54 @@ def table(runs: dict) -> str:
     return "\n".join(lines)
 
 
+def sweep_runs(names: list[str], seeds: list[int], out: Path, cfg: sweep.SweepConfig,
+               argv) -> dict[str, dict[int, dict]]:
+    """``{scene: {seed: result}}`` of the default configuration, run as one sweep into ``out``."""
+    specs = [sweep.RunSpec(n, evaluate.EvalConfig(seed=s, progress=False))
+             for n in names for s in seeds]
+    res = sweep.run_sweep(specs, out, cfg, layout="sweep",
+                          command=f"python benchmarks/bench_gates.py {' '.join(argv)}")
+    runs: dict[str, dict[int, dict]] = {n: {} for n in names}
+    for spec, rec in zip(specs, res["runs"], strict=True):
+        runs[spec.scene][spec.config.seed] = rec["result"]
+    return runs
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("scenes", nargs="*", help=f"default: every bundled scene {list_scenes()}")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--seeds", type=sweep.parse_seeds, default=[0, 1, 2],
+                   help="seeds: 0-2 (default), 0,3,5")
     p.add_argument("--out", type=Path, default=Path("runs/bench_gates"))
     p.add_argument("--repeat", type=int, help="evaluate this seed twice and compare")
+    p.add_argument("--jobs", type=int, help="runs at once (python -m sim.evaluate --jobs)")
+    p.add_argument("--backend", choices=sweep.BACKENDS, default="local")
+    p.add_argument("--address", help="with --backend ray: an existing cluster")
+    p.add_argument("--redo", action="store_true", help="run again the runs recorded in OUT")
     args = p.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
     names = args.scenes or list_scenes()
-    runs: dict[str, dict[int, dict]] = {n: {} for n in names}
+    try:
+        cfg = sweep.SweepConfig(jobs=args.jobs, backend=args.backend, address=args.address,
+                                resume=not args.redo)
+    except ValueError as err:
+        p.error(str(err))
     t0 = time.perf_counter()
-    for seed in args.seeds:
-        ev = evaluate.EvalConfig(seed=seed, progress=False)
-        for name in names:
-            r = evaluate.evaluate_scene(name, ev, args.out / f"seed{seed}")
-            runs[name][seed] = {k: v for k, v in r.items() if not k.startswith("_")}
-            verdict = "ERROR" if r["error"] else "PASS" if r["passed"] else "FAIL"
-            print(f"{name} seed {seed}: {verdict} ({r['wall_s']:.0f} s)", flush=True)
+    runs = sweep_runs(names, args.seeds, args.out, cfg, argv)
+    for name, by_seed in runs.items():
+        for seed, r in by_seed.items():
+            verdict = "ERROR" if r.get("error") else "PASS" if r.get("passed") else "FAIL"
+            print(f"{name} seed {seed}: {verdict} ({r.get('wall_s') or 0:.0f} s)", flush=True)
     summary = {n: all(r.get("passed") for r in by.values()) for n, by in runs.items()}
     repeat = None
     if args.repeat is not None:
-        ev = evaluate.EvalConfig(seed=args.repeat, progress=False)
+        first = runs if args.repeat in args.seeds else sweep_runs(
+            names, [args.repeat], args.out, cfg, argv)
+        second = sweep_runs(names, [args.repeat], args.out / f"repeat{args.repeat}",
+                            dataclasses.replace(cfg, resume=False), argv)
         repeat = {}
         for name in names:
-            first = runs[name].get(args.repeat) or evaluate.evaluate_scene(
-                name, ev, args.out / f"seed{args.repeat}")
-            second = evaluate.evaluate_scene(name, ev, args.out / f"repeat{args.repeat}")
-            a, b = ({**figures(r), "wall_s": None} for r in (first, second))
+            a, b = ({**figures(r[name][args.repeat]), "wall_s": None} for r in (first, second))
             repeat[name] = {"same_figures": a == b, "first": a, "second": b}
     md = ["# The main job's verdict over seeds", "",
           f"`python benchmarks/bench_gates.py {' '.join(sys.argv[1:] if argv is None else argv)}`"

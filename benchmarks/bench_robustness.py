@@ -1,35 +1,39 @@
 """Robustness sweep: how the method's axis and state errors grow with each perturbation of a
 real capture (issue 9), and where it breaks.
 
-Runs ``python -m sim.evaluate SCENE --views V --no-manipulate`` once unperturbed and once per
-(perturbation, strength) with the options of :mod:`sim.perturb` (fewer views: ``--views``), all
-sharing one stage cache (a capture or reconstruction that a run does not change is reused), and
-writes into ``OUT``:
+Runs ``SCENE --views V --no-manipulate`` once unperturbed and once per (perturbation, strength)
+with the options of :mod:`sim.perturb` (fewer views: ``--views``), for every seed of ``--seeds``,
+through the sweep runner of ``python -m sim.evaluate`` (:mod:`sim.evaluate.sweep`: ``--jobs N``
+worker processes, or ``--backend ray [--address ADDR]`` a Ray cluster), all sharing one stage
+cache (a capture or reconstruction that a run does not change is reused), and writes into
+``OUT``:
 
-- ``runs/<perturbation>_<strength>/``: each run's own report folder (results.json, pictures);
-- ``<perturbation>.png``: axis angle error and state error against the strength, with the gate;
-  a run that failed or refused is a red cross at the top of the chart;
-- ``robustness.md`` / ``robustness.json``: the table of every run and, per perturbation, where
-  the method breaks: the first strength at which a joint gate fails (axis angle, axis position,
-  state) or the run refuses or fails. The segmentation accuracy is in the table beside it.
+- ``runs/<scene>-seed<k>-<perturbation>_<strength>/``: each run's own report folder
+  (results.json, pictures, log.txt);
+- ``results.json`` / ``results.md``: the sweep's merged report (every run; per setting the
+  median, worst and spread over seeds), ``sweep_errors.png`` and ``sweep_<perturbation>.png``
+  (errors against the strength, a dot per seed);
+- ``<perturbation>.png``: axis angle error and state error against the strength (the median over
+  seeds), with the gate; a run that failed or refused is a cross at the top of the chart;
+- ``robustness.md`` / ``robustness.json``: the table of every strength and, per perturbation,
+  where the method breaks: the first strength at which a joint gate fails on any seed (axis
+  angle, axis position, state) or a run refuses or fails. The segmentation accuracy is in the
+  table beside it.
 
 A full sweep takes hours on two shared cores; ``--reduced`` (2-3 strengths each) fits in well
-under one. Runs that already have ``results.json`` in ``OUT`` are not redone (``--redo``).
-Never part of the tests. Example::
+under one. Runs recorded in ``OUT`` with the same settings and code are not redone (``--redo``
+runs them again). Never part of the tests. Example::
 
     nice -n 5 python benchmarks/bench_robustness.py --reduced --scene pliers --views 18 \\
-        --out runs/robustness
+        --seeds 0-2 --jobs 2 --out runs/robustness
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import re
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import cv2
@@ -70,31 +74,46 @@ def _run_id(name: str, s) -> str:
     return f"{name}_{s:g}".replace(".", "p")
 
 
-def run_one(out: Path, run_id: str, scene: str, views: int, extra: list[str], use_poses: bool,
-            redo: bool, report_only: bool = False) -> dict | None:
-    """One evaluation (subprocess), sharing ``out/cache``; returns its scene result (None: not
-    run and ``report_only``)."""
-    folder = out / "runs" / run_id
-    res_path = folder / "results.json"
-    if report_only and not res_path.is_file():
-        return None
-    if redo or not res_path.is_file():
-        folder.mkdir(parents=True, exist_ok=True)
-        link = folder / "cache"
-        if not link.exists():
-            os.symlink(os.path.relpath(out / "cache", folder), link)
-        cmd = [sys.executable, "-m", "sim.evaluate", scene, "--views", str(views),
-               "--no-manipulate", "--quiet", "--out", str(folder), *extra]
-        if use_poses:
-            cmd.append("--use-poses")
-        t = time.perf_counter()
-        with open(folder / "log.txt", "w") as log:
-            subprocess.run(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, check=False)
-        print(f"{run_id}: {time.perf_counter() - t:.0f} s", flush=True)
-    if not res_path.is_file():
-        return {"error": f"no results.json (see {folder / 'log.txt'})"}
-    scenes = json.loads(res_path.read_text())["scenes"]
-    return next(iter(scenes.values()))
+def run_spec(scene: str, views: int, seed: int, poses: str, extra: list[str], label: str,
+             perturbation: str = "", strength: float | None = None):
+    """The sweep run of ``python -m sim.evaluate SCENE --views V --no-manipulate --seed K
+    --poses P EXTRA`` (the options read by sim.evaluate's own parser)."""
+    from sim.evaluate import cli, sweep
+
+    args = cli.parser().parse_args([scene, "--views", str(views), "--no-manipulate", "--seed",
+                                    str(seed), "--poses", poses, *extra])
+    return sweep.RunSpec(scene, cli.config_from_args(args), perturbation=perturbation,
+                         strength=strength, label=label)
+
+
+def neutral_motion(scene: str) -> float:
+    """The unperturbed strength of "motion": the scene's first moving joint's own motion (deg
+    for a revolute joint; a prismatic one's cap is 2 s mm, so its mm / 2)."""
+    from sim.scene import load_scene
+
+    j = load_scene(scene).moving_joints[0]
+    return round(abs(np.rad2deg(j.motion)) if j.type == "revolute" else abs(j.motion) * 500, 1)
+
+
+def combine(rows: list[dict]) -> dict:
+    """One row of the seeds of a strength: median figures over the seeds that measured them,
+    passes only if every seed passes, the worst outcome (a wrong answer before a crash before a
+    refusal), the first error."""
+    if len(rows) == 1:
+        return {**rows[0], "seeds": 1, "seeds_passed": int(rows[0]["passes"])}
+    out = dict(rows[0])
+    for key in ("axis_angle_deg", "axis_position_mm", "state_error", "segmentation_accuracy",
+                "scale_error_pct", "camera_position_error_mm", "pose_epipolar_px", "matches",
+                "match_outliers"):
+        vals = [r[key] for r in rows if r.get(key) is not None]
+        out[key] = float(np.median(vals)) if vals else None
+    rank = ["wrong", "crashed", "refused", "ok"]
+    worst = min(rows, key=lambda r: rank.index(r["outcome"]))
+    out.update(passes=all(r["passes"] for r in rows), outcome=worst["outcome"],
+               error=next((r["error"] for r in rows if r["error"]), None),
+               type_estimated=worst.get("type_estimated"), refused=worst["refused"],
+               seeds=len(rows), seeds_passed=sum(r["passes"] for r in rows))
+    return out
 
 
 def summarise(res: dict, gates: dict) -> dict:
@@ -262,11 +281,14 @@ def _f(v, d=2):
 def write_report(out: Path, args, table: dict, gates: dict) -> None:
     from artrecon.sfm import SfMConfig
 
-    lines = [f"# Robustness sweep: {args.scene}, {args.views} views per ring"
-             f"{', FK camera poses (--use-poses)' if args.use_poses else ', SfM from images'}",
+    lines = [f"# Robustness sweep: {args.scene}, {args.views} views per ring, "
+             + ("the arm's FK camera poses" if args.poses == "fk" else "SfM from images")
+             + f", seeds {args.seeds}",
              "", f"Command: `python benchmarks/bench_robustness.py "
              f"{' '.join(sys.argv[1:])}`; each run is `python -m sim.evaluate` without "
-             "manipulation (run folders under `runs/`). Gates: axis angle "
+             "manipulation (run folders under `runs/`; every run in `results.md`). With "
+             "several seeds a row gives the median over the seeds, passes only when every "
+             "seed passes, and the worst outcome. Gates: axis angle "
              f"{gates['axis_angle_deg']} deg, axis position {gates['axis_position_mm']} mm, "
              f"state {gates['state_error_deg']} deg / {gates['state_error_mm']} mm, segmentation "
              f"{gates['segmentation_accuracy']} (reported, not used for 'breaks'). Errors are of "
@@ -307,8 +329,8 @@ def write_report(out: Path, args, table: dict, gates: dict) -> None:
         lines += [f"### {title}", "", f"![{name}]({name}.png)", "",
                   f"| strength ({unit}) | axis angle (deg) | axis position (mm) | state error | "
                   "segmentation | scale error (%) | camera position (mm) | pose check (px) | "
-                  "matches (rejected) | outcome | error |",
-                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+                  "matches (rejected) | seeds passed | outcome | error |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
         for x, r in zip(xs, rows, strict=True):
             lines.append(
                 f"| {x:g} | {_f(r['axis_angle_deg'])} | {_f(r['axis_position_mm'])} | "
@@ -316,6 +338,7 @@ def write_report(out: Path, args, table: dict, gates: dict) -> None:
                 f"{_f(r['segmentation_accuracy'], 3)} | {_f(r['scale_error_pct'])} | "
                 f"{_f(r['camera_position_error_mm'])} | {_f(r.get('pose_epipolar_px'))} | "
                 f"{_f(r.get('matches'))} ({_f(r.get('match_outliers'))}) | "
+                f"{r.get('seeds_passed', '-')}/{r.get('seeds', '-')} | "
                 f"{OUTCOMES[r['outcome']]} | {short_paths(r['error'])[:400]} |")
         lines.append("")
     (out / "robustness.md").write_text("\n".join(lines) + "\n")
@@ -325,54 +348,90 @@ def write_report(out: Path, args, table: dict, gates: dict) -> None:
 
 
 def main(argv=None) -> int:
+    from sim.evaluate import EvalConfig, sweep
+    from sim.evaluate.config import POSE_SOURCES
+
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--scene", default="pliers")
     p.add_argument("--views", type=int, default=18, help="views per ring of every run (18)")
+    p.add_argument("--seeds", type=sweep.parse_seeds, default=[0],
+                   help="seeds of every run: 0-2, 0,3 (default 0)")
     p.add_argument("--out", type=Path, default=ROOT / "runs" / "robustness")
     p.add_argument("--reduced", action="store_true", help="2-3 strengths per perturbation")
     p.add_argument("--strongest", action="store_true",
                    help="only the strongest reduced strength of each perturbation (a first pass; "
                         "a later --reduced run reuses it)")
     p.add_argument("--only", nargs="*", choices=sorted(SWEEPS), help="these perturbations")
-    p.add_argument("--use-poses", action="store_true", help="reconstruct from FK camera poses")
+    p.add_argument("--poses", choices=POSE_SOURCES, default=EvalConfig().poses,
+                   help="camera poses of every run (as python -m sim.evaluate --poses)")
+    p.add_argument("--jobs", type=int, help="runs at once (python -m sim.evaluate --jobs)")
+    p.add_argument("--backend", choices=sweep.BACKENDS, default="local")
+    p.add_argument("--address", help="with --backend ray: an existing cluster")
     p.add_argument("--redo", action="store_true", help="rerun runs that have results")
     p.add_argument("--report-only", action="store_true",
                    help="run nothing: report the runs already in OUT")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
     from sim.evaluate import GATES
 
     out = args.out.resolve()
-    (out / "cache").mkdir(parents=True, exist_ok=True)
     names = args.only or list(SWEEPS)
-    base_res = run_one(out, "baseline", args.scene, args.views, [], args.use_poses, args.redo,
-                       args.report_only)
-    if base_res is None:
-        p.error(f"no baseline run in {out}; run without --report-only first")
-    base = summarise(base_res, GATES)
-    table = {}
+    plan = {}  # perturbation -> [(strength, [spec per seed])]
+    base = [run_spec(args.scene, args.views, s, args.poses, [], "baseline")
+            for s in args.seeds]
+    axes = {}
     for name in names:
         title, unit, full, reduced, opts = SWEEPS[name]
         strengths = [reduced[-1]] if args.strongest else reduced if args.reduced else full
-        xs = [args.views] if name == "views" else [0]
-        if name == "motion" and base.get("state_true") is not None:
-            xs = [round(abs(base["state_true"]), 1)]  # unperturbed: the scene's own motion
-        rows = [base]
-        for s in strengths:
-            extra = opts(s)
-            views = args.views
-            if name == "views":
-                views, extra = int(s), []
-            res = run_one(out, _run_id(name, s), args.scene, views, extra, args.use_poses,
-                          args.redo, args.report_only)
-            if res is None:
-                continue
-            xs.append(s)
-            rows.append(summarise(res, GATES))
+        plan[name] = []
+        for st in strengths:
+            views, extra = (int(st), []) if name == "views" else (args.views, opts(st))
+            plan[name].append((st, [run_spec(args.scene, views, s, args.poses, extra,
+                                             _run_id(name, st), name, st)
+                                    for s in args.seeds]))
+        neutral = (args.views if name == "views" else neutral_motion(args.scene)
+                   if name == "motion" else 0)
+        axes[name] = {"title": title, "unit": unit, "neutral": neutral}
+    specs = base + [sp for runs in plan.values() for _, seeds in runs for sp in seeds]
+    if args.report_only:
+        records = {}
+        for sp in specs:
+            path = out / "runs" / sp.run_id / "run.json"
+            if path.is_file():
+                records[sp.run_id] = json.loads(path.read_text())
+        if not any(sp.run_id in records for sp in base):
+            p.error(f"no baseline run in {out}; run without --report-only first")
+    else:
+        try:
+            cfg = sweep.SweepConfig(jobs=args.jobs, backend=args.backend, address=args.address,
+                                    resume=not args.redo, progress=not args.quiet)
+            results = sweep.run_sweep(
+                specs, out, cfg, layout="sweep", perturbations=axes,
+                command=f"python benchmarks/bench_robustness.py {' '.join(sys.argv[1:])}")
+        except (ValueError, sweep.SweepError) as err:
+            p.error(str(err))
+        records = {r["id"]: r for r in results["runs"] if r["status"] != "not run"}
+
+    def row(specs_):
+        rows = [summarise(records[sp.run_id]["result"], GATES) for sp in specs_
+                if sp.run_id in records]
+        return combine(rows) if rows else None
+
+    base_row = row(base)
+    table = {}
+    for name in names:
+        title, unit, *_ = SWEEPS[name]
+        xs, rows = [axes[name]["neutral"]], [base_row]
+        for st, seeds in plan[name]:
+            r = row(seeds)
+            if r is not None:
+                xs.append(st)
+                rows.append(r)
+        if len(rows) > 1:
             table[name] = (title, unit, xs, rows)
             plot_sweep(out / f"{name}.png", title, unit, xs, rows, GATES)
-            write_report(out, args, table, GATES)
     write_report(out, args, table, GATES)
-    print(f"report: {out / 'robustness.md'}")
+    print(f"report: {out / 'robustness.md'}, {out / 'results.md'}")
     return 0
 
 

@@ -5,12 +5,15 @@ Run from anywhere::
     python scenes/make_assets.py            # writes scenes/assets/
     python scenes/make_assets.py --out DIR  # writes elsewhere (the tests check determinism so)
 
+This script only describes the parts (their shapes, atlas sizes and texel sizes); the machinery
+(surface patches, atlas packing, OBJ writing, the textures) is :mod:`sim.assets`, which also
+textures any mesh of your own (:func:`sim.assets.texture_mesh`; ``python -m sim.author import``
+uses it for imported objects).
+
 Everything is deterministic: one master seed, one derived seed per part (from the part's name),
 numpy's PCG64 generator, OpenCV drawing. Each part is one OBJ mesh with UVs and one PNG texture.
 Every face of every mesh has its own region of its texture atlas, so no piece of texture appears
-twice anywhere in the world (a repeated pattern can make SfM fold a ring of cameras). The
-texture is multi-scale colour noise under many random coloured blobs and strokes, which gives
-corners at all scales from about 2 to 60 texels.
+twice anywhere in the world (a repeated pattern can make SfM fold a ring of cameras).
 
 Geometry is in metres in the frame of the MJCF body that carries the mesh (the geoms that use
 the meshes have no pos or quat). The z = 0 plane of an object's root body is the table top.
@@ -24,271 +27,23 @@ image centre and 1.4 mm per pixel for a 20 cm object filling half the image, so 
 from __future__ import annotations
 
 import argparse
-import zlib
-from dataclasses import dataclass
+import sys
 from pathlib import Path
 
-import cv2
-import numpy as np
-
-#: Master seed of every asset; change it to get a different (but again deterministic) world.
-SEED = 2024
-#: Blank border, in texels, around each face's region in an atlas (keeps mipmaps from mixing
-#: neighbouring faces at the distances the camera sees them).
-PAD = 3
-#: Segments of a full circle for cylinders and disks (visual only; collisions use primitives).
-SEGMENTS = 48
-
 HERE = Path(__file__).resolve().parent
+if str(HERE.parent) not in sys.path:  # run as a script: import this checkout's sim
+    sys.path.insert(0, str(HERE.parent))
 
-
-# --------------------------------------------------------------------------------------------
-# Geometry: patches (planar-parameterised pieces of surface) and their atlas layout
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass
-class Patch:
-    """A piece of surface whose texture coordinates are metres in its own plane.
-
-    positions : (n, 3) float, vertices in the body frame.
-    normals : (n, 3) float, unit vertex normals.
-    local : (n, 2) float, texture-plane coordinates in metres, in [0, size[0]] x [0, size[1]].
-    triangles : (m, 3) int, counter-clockwise seen from outside.
-    size : (2,) float, extent of ``local`` in metres.
-    coarse : float, multiplier of the part's texel size for this patch.
-    """
-
-    positions: np.ndarray
-    normals: np.ndarray
-    local: np.ndarray
-    triangles: np.ndarray
-    size: np.ndarray
-    coarse: float = 1.0
-    """Multiplier of the part's texel size for this patch (surfaces only seen from afar)."""
-
-
-def rot_z(yaw: float) -> np.ndarray:
-    """Rotation matrix (3, 3) about +z by ``yaw`` radians."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def quad(corners: np.ndarray, coarse: float = 1.0) -> Patch:
-    """A planar quad from four corners (4, 3), counter-clockwise seen from outside."""
-    corners = np.asarray(corners, dtype=float)
-    e1 = corners[1] - corners[0]
-    e2 = corners[3] - corners[0]
-    w, h = np.linalg.norm(e1), np.linalg.norm(e2)
-    n = np.cross(e1, e2)
-    n /= np.linalg.norm(n)
-    local = np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]])
-    return Patch(corners, np.tile(n, (4, 1)), local, np.array([[0, 1, 2], [0, 2, 3]]),
-                 np.array([w, h]), coarse)
-
-
-def box(lo, hi, R: np.ndarray | None = None, about=(0.0, 0.0, 0.0), skip=()) -> list[Patch]:
-    """Six quads of the box [lo, hi], rotated by ``R`` about the point ``about``.
-
-    ``skip`` names faces to leave out ("-x", "+x", "-y", "+y", "-z", "+z"), for faces that
-    can never be seen (e.g. resting on the table).
-    """
-    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    R = np.eye(3) if R is None else R
-    about = np.asarray(about, float)
-    x0, y0, z0 = lo
-    x1, y1, z1 = hi
-    faces = {
-        "-x": [[x0, y1, z0], [x0, y0, z0], [x0, y0, z1], [x0, y1, z1]],
-        "+x": [[x1, y0, z0], [x1, y1, z0], [x1, y1, z1], [x1, y0, z1]],
-        "-y": [[x0, y0, z0], [x1, y0, z0], [x1, y0, z1], [x0, y0, z1]],
-        "+y": [[x1, y1, z0], [x0, y1, z0], [x0, y1, z1], [x1, y1, z1]],
-        "-z": [[x0, y1, z0], [x1, y1, z0], [x1, y0, z0], [x0, y0, z0]],
-        "+z": [[x0, y0, z1], [x1, y0, z1], [x1, y1, z1], [x0, y1, z1]],
-    }
-    out = []
-    for name, c in faces.items():
-        if name in skip:
-            continue
-        out.append(quad((np.asarray(c) - about) @ R.T + about))
-    return out
-
-
-def bar(p0, p1, width: float, z0: float, z1: float) -> list[Patch]:
-    """A flat bar (box) in the xy plane from point ``p0`` to ``p1`` (2,), between heights z."""
-    p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
-    d = p1 - p0
-    length = float(np.linalg.norm(d))
-    yaw = float(np.arctan2(d[1], d[0]))
-    c = (p0 + p1) / 2
-    lo = [c[0] - length / 2, c[1] - width / 2, z0]
-    hi = [c[0] + length / 2, c[1] + width / 2, z1]
-    return box(lo, hi, rot_z(yaw), about=(c[0], c[1], 0.0))
-
-
-def cylinder(center, radius: float, half_height: float, axis: str = "z",
-             caps=(True, True), pieces: int = 1, coarse=(1.0, 1.0, 1.0)) -> list[Patch]:
-    """Side and caps of a cylinder about a coordinate axis.
-
-    The side is unrolled into ``pieces`` patches (so a long side fits an atlas); ``coarse``
-    multiplies the texel size of (side, bottom cap, top cap) for surfaces seen only from afar.
-    """
-    center = np.asarray(center, float)
-    # Built about z, then coordinates are cyclically permuted for x or y axes (a rotation).
-    perm = {"z": [0, 1, 2], "x": [1, 2, 0], "y": [2, 0, 1]}[axis]
-
-    def place(v, shift=True):
-        out = np.empty_like(v)
-        out[..., perm] = v
-        return out + center if shift else out
-
-    patches = []
-    per = SEGMENTS // pieces
-    for k in range(pieces):
-        t = np.linspace(2 * np.pi * k / pieces, 2 * np.pi * (k + 1) / pieces, per + 1)
-        ring = np.stack([np.cos(t), np.sin(t)], axis=-1)
-        n = len(t)
-        pos = np.concatenate([np.c_[radius * ring, np.full(n, -half_height)],
-                              np.c_[radius * ring, np.full(n, half_height)]])
-        nrm = np.concatenate([np.c_[ring, np.zeros(n)]] * 2)
-        arc = radius * (t - t[0])
-        local = np.concatenate([np.c_[arc, np.zeros(n)],
-                                np.c_[arc, np.full(n, 2 * half_height)]])
-        tris = []
-        for i in range(per):
-            a, b, c, d = i, i + 1, n + i + 1, n + i
-            tris += [[a, b, c], [a, c, d]]
-        patches.append(Patch(place(pos), place(nrm, False), local, np.array(tris),
-                             np.array([arc[-1], 2 * half_height]), coarse[0]))
-    t = np.linspace(0.0, 2 * np.pi, SEGMENTS, endpoint=False)
-    rim = radius * np.stack([np.cos(t), np.sin(t)], axis=-1)
-    k = SEGMENTS
-    for sign, want, scale in zip((-1.0, 1.0), caps, coarse[1:], strict=True):
-        if not want:
-            continue
-        p = np.concatenate([[[0.0, 0.0, sign * half_height]],
-                            np.c_[rim, np.full(k, sign * half_height)]])
-        nr = np.tile([0.0, 0.0, sign], (k + 1, 1))
-        loc = np.concatenate([[[radius, radius]], rim + radius])
-        if sign < 0:  # seen from below: mirror the texture plane so it is not mirrored on screen
-            loc[:, 0] = 2 * radius - loc[:, 0]
-        tri = [[0, 1 + i, 1 + (i + 1) % k] if sign > 0 else [0, 1 + (i + 1) % k, 1 + i]
-               for i in range(k)]
-        patches.append(Patch(place(p), place(nr, False), loc, np.array(tri),
-                             np.array([2 * radius, 2 * radius]), scale))
-    return patches
-
-
-def pack(sizes_m: np.ndarray, texel: np.ndarray, width: int, height: int):
-    """Shelf-pack rectangles (k, 2) metres at ``texel`` (k,) m/texel; offsets (k, 2) or None."""
-    # rounded before the ceiling: many sizes are whole numbers of texels, and the last bit of a
-    # division (which differs between machines' SIMD paths) must not add a texel on one machine
-    px = np.ceil(np.round(sizes_m / texel[:, None], 6)).astype(int) + 2 * PAD
-    order = sorted(range(len(px)), key=lambda i: (-px[i, 1], -px[i, 0], i))
-    offsets = np.zeros((len(px), 2), int)
-    x = y = row_h = 0
-    for i in order:
-        w, h = px[i]
-        if w > width:
-            return None
-        if x + w > width:
-            x, y, row_h = 0, y + row_h, 0
-        if y + h > height:
-            return None
-        offsets[i] = (x + PAD, y + PAD)
-        x += w
-        row_h = max(row_h, h)
-    return offsets
-
-
-def layout(patches: list[Patch], width: int, height: int, texel: float):
-    """Smallest texel size >= ``texel`` (in 2 % steps) at which all patches fit the atlas."""
-    sizes = np.array([p.size for p in patches])
-    coarse = np.array([p.coarse for p in patches])
-    for _ in range(400):
-        offsets = pack(sizes, texel * coarse, width, height)
-        if offsets is not None:
-            return offsets, texel
-        texel *= 1.02
-    raise RuntimeError("patches do not fit the atlas; enlarge it")
-
-
-def write_obj(path: Path, patches: list[Patch], offsets: np.ndarray, texel: float,
-              width: int, height: int, mtl_name: str) -> None:
-    """Write an OBJ with positions, UVs (OBJ convention: v = 0 at the image's bottom row) and
-    normals; one texture region per patch."""
-    lines = [f"# {path.name}: generated by scenes/make_assets.py, do not edit",
-             f"# texel {texel * 1000:.3f} mm, atlas {width}x{height}", f"o {mtl_name}"]
-    v_lines, vt_lines, vn_lines, f_lines = [], [], [], []
-    base = 1
-    for p, off in zip(patches, offsets, strict=True):
-        uv_px = off + p.local / (texel * p.coarse)
-        u = uv_px[:, 0] / width
-        v = 1.0 - uv_px[:, 1] / height
-        for q in p.positions:
-            v_lines.append(f"v {q[0]:.6f} {q[1]:.6f} {q[2]:.6f}")
-        for a, b in zip(u, v, strict=True):
-            vt_lines.append(f"vt {a:.6f} {b:.6f}")
-        for nrm in p.normals:
-            vn_lines.append(f"vn {nrm[0]:.6f} {nrm[1]:.6f} {nrm[2]:.6f}")
-        for t in p.triangles + base:
-            f_lines.append("f " + " ".join(f"{i}/{i}/{i}" for i in t))
-        base += len(p.positions)
-    path.write_text("\n".join(lines + v_lines + vt_lines + vn_lines + f_lines) + "\n")
-
-
-# --------------------------------------------------------------------------------------------
-# Textures
-# --------------------------------------------------------------------------------------------
-
-
-def _noise(rng: np.random.Generator, h: int, w: int, cells: float, c: int) -> np.ndarray:
-    """Smooth value noise (h, w, c) in about [0, 1] with ``cells`` cells across the width."""
-    gw = max(2, int(round(cells)))
-    gh = max(2, int(round(cells * h / w)))
-    g = rng.random((gh, gw, c)).astype(np.float32)
-    return cv2.resize(g, (w, h), interpolation=cv2.INTER_CUBIC).reshape(h, w, c)
-
-
-def make_texture(seed: int, width: int, height: int, density: float = 1.0,
-                 saturation: float = 1.0) -> np.ndarray:
-    """A rich, non-repeating RGB texture (height, width, 3) uint8.
-
-    Colour noise blended from a part-specific palette, modulated by mid-frequency luminance
-    noise, under random anti-aliased ellipses (radius 1.5 - 30 texels, log-uniform) and short
-    polyline strokes. ``density`` scales the number of blobs and strokes; ``saturation`` < 1
-    mutes the colours toward a warm grey (the background, so that objects stand out on it).
-    """
-    rng = np.random.default_rng(seed)
-    palette = rng.uniform(0.1, 0.95, (4, 3)).astype(np.float32)
-    weights = _noise(rng, height, width, 5, 4) ** 3
-    weights /= weights.sum(-1, keepdims=True)
-    img = weights @ palette
-    img *= 0.7 + 0.6 * _noise(rng, height, width, width / 16, 1)
-    img = np.clip(img * 255, 0, 255).astype(np.uint8)
-    img = np.ascontiguousarray(img)
-    for _ in range(int(density * width * height / 250)):
-        centre = (int(rng.integers(0, width)), int(rng.integers(0, height)))
-        r = float(np.exp(rng.uniform(np.log(1.5), np.log(30.0))))
-        axes = (max(1, int(r)), max(1, int(r * rng.uniform(0.3, 1.0))))
-        if rng.random() < 0.5:  # half the blobs take a shade of the part's own palette
-            col = palette[rng.integers(0, 4)] * 255 * rng.uniform(0.4, 1.3)
-        else:
-            col = rng.integers(0, 256, 3)
-        colour = tuple(int(np.clip(v, 0, 255)) for v in col)
-        cv2.ellipse(img, centre, axes, float(rng.uniform(0, 180)), 0, 360, colour, -1,
-                    cv2.LINE_AA)
-    for _ in range(int(density * width * height / 3000)):
-        steps = rng.normal(0, 8, (int(rng.integers(2, 6)), 2))
-        pts = np.cumsum(steps, 0) + rng.uniform(0, [width, height])
-        colour = tuple(int(v) for v in rng.integers(0, 256, 3))
-        cv2.polylines(img, [pts.astype(np.int32)], False, colour, int(rng.integers(1, 4)),
-                      cv2.LINE_AA)
-    if saturation != 1.0:
-        grey = img.astype(np.float32).mean(-1, keepdims=True) * np.float32([1.05, 0.98, 0.88])
-        img = np.clip(grey + saturation * (img - grey), 0, 255).astype(np.uint8)
-    return img
-
+from sim.assets import (  # noqa: E402
+    SEED,
+    Part,
+    Patch,
+    bar,
+    box,
+    cylinder,
+    generate_parts,
+    quad,
+)
 
 # --------------------------------------------------------------------------------------------
 # Parts. Object frames: z = 0 is the table top, the object's root body sits at the table centre.
@@ -504,19 +259,6 @@ def hinged_cabinet_drawer() -> list[Patch]:
     return out
 
 
-@dataclass(frozen=True)
-class Part:
-    """One generated asset: ``<name>.obj`` and ``<name>.png``."""
-
-    name: str
-    build: object  # () -> list[Patch]
-    width: int  # atlas size in texels
-    height: int
-    texel: float  # wanted texel size, metres; grown until the patches fit
-    density: float = 1.0  # blobs per area, relative
-    saturation: float = 1.0  # colour saturation, relative (background parts are muted)
-
-
 PARTS = (
     Part("pliers_fixed", lambda: pliers_half(-1.0, 0.0005, 0.0085), 256, 256, 0.0005),
     Part("pliers_moving", lambda: pliers_half(+1.0, 0.0095, 0.0175), 256, 256, 0.0005),
@@ -543,27 +285,9 @@ PARTS = (
 )
 
 
-def part_seed(seed: int, name: str) -> int:
-    """Seed of one part: stable across runs, platforms and the order of PARTS."""
-    return int(np.random.SeedSequence([seed, zlib.crc32(name.encode())]).generate_state(1)[0])
-
-
 def generate(out_dir: Path, seed: int = SEED) -> dict[str, float]:
     """Write every part's OBJ and PNG into ``out_dir``; returns the texel size (m) per part."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    texels = {}
-    for part in PARTS:
-        patches = part.build()
-        offsets, texel = layout(patches, part.width, part.height, part.texel)
-        write_obj(out_dir / f"{part.name}.obj", patches, offsets, texel, part.width,
-                  part.height, part.name)
-        img = make_texture(part_seed(seed, part.name), part.width, part.height, part.density,
-                           part.saturation)
-        cv2.imwrite(str(out_dir / f"{part.name}.png"), img[..., ::-1],
-                    [cv2.IMWRITE_PNG_COMPRESSION, 9])
-        texels[part.name] = texel
-    return texels
+    return generate_parts(PARTS, out_dir, seed, generator="scenes/make_assets.py")
 
 
 def main() -> None:

@@ -9,10 +9,18 @@ run of ``python -m sim.evaluate`` redoes only what changed. Folders are built un
 name beside their final place and renamed when complete: a folder that exists is whole (a run that
 is killed leaves at most a work folder ``.<stage>-<hash>.tmp-<pid>-*``, which the next run ignores
 and removes; one whose process still runs, a concurrent run on the same folder, is left alone).
+
+Several processes may share one cache (the workers of a sweep, :mod:`sim.evaluate.sweep`): a
+complete folder is never removed or written again, so a reader never sees half of one; a process
+about to build a stage takes an exclusive lock on ``ROOT/.<stage>-<hash>.lock`` (``flock``: the
+kernel releases it when the holder dies; the holder removes the file when done) and looks
+again, so a second process asking for the same stage waits for the first and reads its folder
+instead of building it twice.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
@@ -163,6 +171,61 @@ def cached_stage(root: str | os.PathLike, stage: str, inputs: dict,
         log.info("cache hit: %s", final)
         return final, json.loads(meta_path.read_text()), True
     root.mkdir(parents=True, exist_ok=True)
+    with _stage_lock(root / f".{key}.lock"):
+        if meta_path.is_file():  # another process built it while this one waited for the lock
+            log.info("cache hit (built by a concurrent run): %s", final)
+            return final, json.loads(meta_path.read_text()), True
+        return _build(root, key, final, inputs, build)
+
+
+@contextlib.contextmanager
+def _stage_lock(path: Path):
+    """Hold an exclusive ``flock`` on the lock file ``path`` while the block runs.
+
+    The holder removes the file when it is done, so a cache keeps no lock files; a process that
+    was waiting on the removed file finds, once it holds that lock, that ``path`` is no longer
+    the file it locked, and starts over (the usual lock-file dance). A holder that dies releases
+    the lock (the kernel does) and leaves the file, which the next holder removes. Without
+    ``fcntl``, or where the file system refuses locks, no lock: the atomic rename alone still
+    keeps the folder whole (two processes may then both build the stage; the first one wins).
+    """
+    try:
+        import fcntl
+    except ImportError:  # not POSIX
+        yield
+        return
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                log.info("waiting for another process building %s", path.name[1:-5])
+                fcntl.flock(fd, fcntl.LOCK_EX)
+        except OSError as err:  # e.g. ENOLCK on a network file system without locks
+            os.close(fd)
+            log.warning("no lock on %s (%s): building without one", path, err)
+            yield
+            return
+        try:
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)  # the holder before removed this file: lock the one there now
+    try:
+        yield
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(path)
+        os.close(fd)  # releases the lock
+
+
+def _build(root: Path, key: str, final: Path, inputs: dict,
+           build: Callable[[Path], dict]) -> tuple[Path, dict, bool]:
+    """Build a stage into a work folder and rename it to ``final`` (see :func:`cached_stage`)."""
+    meta_path = final / STAGE_FILE
     for old in root.glob(f".{key}.*.tmp"):  # left by a killed run before work folders
         shutil.rmtree(old, ignore_errors=True)  # carried their process id
     # removes the work folders of killed runs, keeps those of a concurrent run building this
@@ -173,12 +236,20 @@ def cached_stage(root: str | os.PathLike, stage: str, inputs: dict,
         meta = dict(build(tmp) or {})
         meta.update(key=key, inputs=inputs, build_s=time.perf_counter() - t0)
         write_json_atomic(tmp / STAGE_FILE, meta)
-        if meta_path.is_file():  # a concurrent run finished the same stage first: keep its
-            shutil.rmtree(tmp, ignore_errors=True)  # folder (the same inputs, the same result)
+        if meta_path.is_file():  # a concurrent run finished the same stage first (no lock was
+            shutil.rmtree(tmp, ignore_errors=True)  # to be had): keep its folder, the same
+            return final, json.loads(meta_path.read_text()), True  # inputs give the same result
+        if final.exists():  # an incomplete folder (no stage.json) from an older layout: moved
+            aside = make_work_dir(final)  # aside in one rename, then removed
+            os.replace(final, aside / "old")
+            shutil.rmtree(aside, ignore_errors=True)
+        try:
+            os.replace(tmp, final)
+        except OSError:  # the folder appeared meanwhile (a concurrent run without a lock)
+            if not meta_path.is_file():
+                raise
+            shutil.rmtree(tmp, ignore_errors=True)
             return final, json.loads(meta_path.read_text()), True
-        if final.exists():  # an incomplete folder (no stage.json) from an older layout
-            shutil.rmtree(final)
-        os.replace(tmp, final)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -3,9 +3,10 @@
 ``python -m sim.capture SCENE --config a|b --out DIR [--views N] [--seed S]`` writes one image set::
 
     DIR/images/000.png ...        what the wrist camera saw (RGB)
-    DIR/cameras.json              intrinsics K, size, per image the arm's joint angles and the
-                                  camera pose from the arm's forward kinematics (what a real robot
-                                  knows); this and images/ are what artrecon reads
+    DIR/cameras.json              intrinsics K, size, per image the arm's joint angles, the
+                                  camera and the flange pose from the arm's forward kinematics
+                                  (what a real robot knows); this and images/ are what artrecon
+                                  reads
     DIR/capture.json              the plan: views planned, captured, unreachable and why
     DIR/ground_truth/             scoring only, never read by artrecon:
         poses.json                true camera poses (MuJoCo), FK error, object joint values, object
@@ -497,6 +498,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
                 "pose_source": "arm_fk" if view.reachable else "free_camera",
                 "q": None if q is None else [float(x) for x in q],
                 "T_world_camera": None if T_fk is None else _as_list(T_fk),
+                "T_world_flange": None if q is None else _as_list(kin.frame_pose(q, "flange")),
             })
             gt_images.append({
                 "file": name,
@@ -584,6 +586,113 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
     log.info("%s config %s: %d/%d views captured into %s (%.1f s)", sc.name, config,
              result.n_captured, result.n_planned, out_dir, result.timings["total_s"])
     return result
+
+
+#: The fresh view (:func:`capture_fresh_view`) lies between the first two capture rings (20 and
+#: 40 degrees by default), so no image of a set was taken from there ...
+FRESH_ELEVATION_DEG = 30.0
+#: ... and half a capture step (10 degrees at 36 views per ring) off the arm's current azimuth;
+#: further offsets are tried when that one is out of reach.
+FRESH_AZIMUTH_OFFSETS_DEG = (5.0, 15.0, -5.0, -15.0, 25.0, -25.0, 35.0, -35.0)
+
+
+@dataclass
+class FreshView:
+    """What :func:`capture_fresh_view` wrote."""
+
+    image: Path
+    """the image file"""
+    pose_file: Path
+    """``{"q", "T_world_flange", "T_world_camera"}``: what the robot knows (FK of its joints)"""
+    q: np.ndarray
+    """the arm's joint angles at the view (rail first)"""
+    T_world_flange: np.ndarray
+    """flange pose from FK (m)"""
+    T_world_camera_true: np.ndarray
+    """the camera's true pose (scoring only; ``ground_truth.json`` beside the image)"""
+
+
+def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.6,
+                       seed: int = 0) -> FreshView:
+    """One more image after the capture, from an arm pose that neither image set holds.
+
+    The arm starts at ``q_start`` (where the capture left it), plans a view at
+    :data:`FRESH_ELEVATION_DEG` half a capture step off its current azimuth (other offsets when
+    that one is out of reach), moves there in physics along a checked line and photographs the
+    object. Writes ``out_dir/fresh.png``, ``out_dir/pose.json`` (joint angles, flange and camera
+    pose from forward kinematics: what the robot knows) and ``out_dir/ground_truth.json`` (the
+    true camera pose, scoring only), whole or not at all.
+
+    Raises
+    ------
+    CaptureError
+        No offset gives a reachable, collision-free view with a clear path.
+    """
+    out_dir = _check_out_dir(Path(out_dir), overwrite=False)
+    sc = _load(scene).with_joint_holds()
+    model = sc.model
+    data = sc.make_data(config)
+    sc.hold(data, config)
+    kin = robot.load_arm_kinematics(model)
+    cam_name = kin.spec.prefix + kin.spec.camera
+    cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, cam_name)
+    K, (width, height) = mujoco_camera_intrinsics(model, cam_name)
+    q_start = np.asarray(q_start, dtype=float)
+    data.qpos[robot.qpos_indices(model, kin)] = q_start
+    mujoco.mj_forward(model, data)
+    centre, radius = views.object_bounding_sphere(model, data)
+    distance = views.ring_distance(radius, K, width, height, fill)
+    eye = kin.camera_pose(q_start)[:3, 3] - centre
+    az0 = float(np.arctan2(eye[1], eye[0]))
+    el = np.deg2rad(FRESH_ELEVATION_DEG)
+    reasons = []
+    chosen = None
+    for k, off in enumerate(FRESH_AZIMUTH_OFFSETS_DEG):
+        az = az0 + np.deg2rad(off)
+        pos = centre + distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az),
+                                            np.sin(el)])
+        view = views.View(k, 0, az, el, distance, robot.look_at_pose(pos, centre))
+        views.solve_views(model, data, kin, [view], seed=seed, q_start=q_start)
+        if view.reachable:
+            views.check_paths(model, data, kin, [view], q_start=q_start)
+        if view.reachable:
+            chosen = view
+            break
+        reasons.append(f"{off:+.0f} deg: {view.reason}")
+    if chosen is None:
+        raise CaptureError(f"no fresh view of {sc.name!r} is reachable near the arm's pose: "
+                           + "; ".join(reasons[:3]))
+    arm = _Arm(model, data, kin)
+    arm.place(q_start)
+    hits = arm.move(chosen.q)
+    if hits:
+        raise CaptureError(f"the arm touched {', '.join(hits)} on its way to the fresh view of "
+                           f"{sc.name!r}")
+    q = arm.measured_q()
+    T_true = convert_camera_pose(np.r_[np.c_[data.cam_xmat[cam_id].reshape(3, 3),
+                                             data.cam_xpos[cam_id]], [[0, 0, 0, 1]]])
+    renderer = render.MjRenderer(model)
+    color = renderer.render(data, K, T_true, width, height).color
+    T_flange = kin.frame_pose(q, "flange")
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".tmp", dir=out_dir.parent))
+    try:
+        Image.fromarray(color).save(tmp / "fresh.png", compress_level=PNG_COMPRESS_LEVEL)
+        pose = {"scene": sc.name, "config": config, "q": [float(x) for x in q],
+                "joint_names": list(kin.joint_names), "K": _as_list(K),
+                "T_world_flange": _as_list(T_flange),
+                "T_world_camera": _as_list(kin.camera_pose(q)),
+                "view": {"azimuth_deg": float(np.rad2deg(chosen.azimuth)),
+                         "elevation_deg": FRESH_ELEVATION_DEG, "distance_m": distance,
+                         "roll_deg": chosen.roll_deg}}
+        (tmp / "pose.json").write_text(json.dumps(pose, indent=2) + "\n")
+        (tmp / "ground_truth.json").write_text(json.dumps(
+            {"T_world_camera": _as_list(T_true)}, indent=2) + "\n")
+        os.chmod(tmp, 0o755)
+        os.replace(tmp, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return FreshView(out_dir / "fresh.png", out_dir / "pose.json", q, T_flange, T_true)
 
 
 def main(argv=None) -> int:

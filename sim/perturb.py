@@ -308,8 +308,31 @@ def perturb_cameras(cameras: dict, kin, p: Perturbation, seed: int,
         q_rep = q + np.deg2rad(p.encoder_noise_deg) * rng.normal(size=q.shape)
         im["q"] = [float(x) for x in q_rep]
         im["T_world_camera"] = (kin.camera_pose(q_rep) @ E).tolist()
+        im["T_world_flange"] = kin.frame_pose(q_rep, "flange").tolist()
         im["pose_source"] = "arm_fk (perturbed: encoder noise / mount error)"
     return out
+
+
+def perturb_fresh_pose(pose_file: Path, scene: Scene, p: Perturbation, seed: int) -> None:
+    """Perturb a fresh view's ``pose.json`` (:func:`sim.capture.capture_fresh_view`) like the
+    capture's poses: encoder noise on its joint angles, and the flange and camera poses the
+    robot then believes (the mount error moves the camera, not the flange). No-op without
+    those perturbations."""
+    if not (p.encoder_noise_deg > 0 or p.mount_error_mm > 0 or p.mount_error_deg > 0):
+        return
+    from sim import robot
+
+    kin = robot.load_arm_kinematics(scene.model)
+    pose = json.loads(Path(pose_file).read_text())
+    rng = np.random.default_rng([seed, ord("f"), 17])
+    q = np.asarray(pose["q"], float) + np.deg2rad(p.encoder_noise_deg) * rng.normal(
+        size=len(pose["q"]))
+    pose["q"] = [float(x) for x in q]
+    pose["T_world_flange"] = kin.frame_pose(q, "flange").tolist()
+    pose["T_world_camera"] = (kin.camera_pose(q) @ mount_error(p.mount_error_mm,
+                                                               p.mount_error_deg, seed)).tolist()
+    pose["pose_source"] = "arm_fk (perturbed: encoder noise / mount error)"
+    Path(pose_file).write_text(json.dumps(pose, indent=2) + "\n")
 
 
 def perturb_set(src: Path, dst: Path, scene: Scene, p: Perturbation, seed: int,

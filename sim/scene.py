@@ -38,14 +38,17 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-#: Folder of the bundled scenes; ``ARTRECON_SCENES_DIR`` points elsewhere (a folder laid out the
-#: same way: scene files beside ``stage.xml``).
-SCENES_DIR = Path(os.environ.get("ARTRECON_SCENES_DIR",
-                                 Path(__file__).resolve().parents[1] / "scenes"))
+#: Folder of the scenes that come with the harness (the stage, its assets, the bundled scenes).
+BUNDLED_SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
+#: Folder of the scenes found by name; ``ARTRECON_SCENES_DIR`` points elsewhere (a folder laid
+#: out the same way: scene files beside ``stage.xml``).
+SCENES_DIR = Path(os.environ.get("ARTRECON_SCENES_DIR", BUNDLED_SCENES_DIR))
 
-#: Files in the scenes folder that are not scenes themselves: the stage and its variant with the
-#: Panda arm (``stage_panda.xml``), included by scene files.
-NON_SCENE_FILES = frozenset({"stage.xml", "stage_panda.xml"})
+#: The stage file of each arm (``<custom><text name="artrecon:arm">``): the floor, walls, table,
+#: lights and the arm on its rail, included by every scene that the arm works in.
+STAGE_FILES = {"puma560": "stage.xml", "panda": "stage_panda.xml"}
+#: Files in the scenes folder that are not scenes themselves: the stages, included by scenes.
+NON_SCENE_FILES = frozenset(STAGE_FILES.values())
 
 #: Name of the object's root body.
 OBJECT_BODY = "object"
@@ -371,14 +374,44 @@ def _name(model: mujoco.MjModel, obj: mujoco.mjtObj, i: int) -> str:
     return mujoco.mj_id2name(model, obj, i) or ""
 
 
+def stage_file(arm: str = "puma560") -> Path:
+    """Absolute path of the bundled stage that carries ``arm`` (a key of :data:`STAGE_FILES`).
+
+    A scene anywhere on disk includes it by this path (``<include file="..."/>``): MuJoCo finds
+    a file that an included file names relative to the scene's folder first and then relative
+    to the included file's own folder, so the stage's assets and arm come from the harness and
+    the scene's folder holds only the scene and its own assets.
+    """
+    if arm not in STAGE_FILES:
+        raise ValueError(f"unknown arm {arm!r}; the stages carry {sorted(STAGE_FILES)}")
+    return BUNDLED_SCENES_DIR / STAGE_FILES[arm]
+
+
+def _missing_file_fix(path: Path, msg: str) -> str:
+    """The fix for a file MuJoCo could not open while compiling the scene ``path``."""
+    stages = sorted(STAGE_FILES.values())
+    if any(f"'{name}'" in msg or f"/{name}'" in msg for name in stages) \
+            and not (path.parent / "stage.xml").is_file():
+        return (f"the scene includes a stage that is not beside it; include the bundled one by "
+                f"its absolute path, <include file=\"{stage_file()}\"/> (or "
+                f"{stage_file('panda')} for the Panda), as `python -m sim.author` writes scenes")
+    if "robots" in msg:
+        return ("MuJoCo 4.0 looks for the stage's arm (<model file=\"../robots/...\">) from the "
+                "working directory first and, for a stage included from another folder, "
+                "misplaces it when the working directory has a ../robots beside it; run from "
+                "the repository root (or any folder without ../robots)")
+    return (f"file= paths are relative to the scene file's folder {path.parent}, then to the "
+            f"folder of the included file that names them; for the bundled assets run "
+            f"`python scenes/make_assets.py`")
+
+
 def _compile(path: Path) -> mujoco.MjModel:
     try:
         return mujoco.MjModel.from_xml_path(str(path))
     except ValueError as err:
         msg = str(err).strip()
         if "opening file" in msg or "resource not found" in msg or "could not open" in msg:
-            fix = (f"file= paths are relative to the scene file's folder {path.parent} (also in "
-                   f"included files); for the bundled assets run `python scenes/make_assets.py`")
+            fix = _missing_file_fix(path, msg)
         else:
             fix = "fix the element MuJoCo names (see scenes/README.md for the conventions)"
         raise SceneError(f"{path}: MuJoCo could not compile the scene: {msg}. Fix: {fix}") \

@@ -421,25 +421,47 @@ def clearance_violations(model: mujoco.MjModel, data: mujoco.MjData, links: set[
     clearance : float
         Metres.
     """
-    arm_geom = np.isin(model.geom_bodyid, sorted(links))
+    # called ~10^5 times by a large object's plan: the body masks once per model and set
+    is_link, is_robot = _body_masks(model, links, robot_body_ids)
+    arm_geom = is_link[model.geom_bodyid]
     saved = model.geom_margin[arm_geom].copy()
     model.geom_margin[arm_geom] = np.maximum(saved, clearance)
     try:
         mujoco.mj_kinematics(model, data)
         mujoco.mj_collision(model, data)
-        out = []
-        for c in data.contact[: data.ncon]:
-            g1, g2 = int(c.geom[0]), int(c.geom[1])
-            b1, b2 = int(model.geom_bodyid[g1]), int(model.geom_bodyid[g2])
-            if b1 not in links and b2 not in links:
-                continue
-            limit = 0.0 if (b1 in robot_body_ids and b2 in robot_body_ids) else clearance
-            if c.dist < limit:
-                out.append(f"{_geom_name(model, g1)}/{_geom_name(model, g2)} "
-                           f"({c.dist * 1e3:.1f} mm)")
+        n = data.ncon
+        if n == 0:
+            return []
+        geoms = data.contact.geom[:n]
+        dist = data.contact.dist[:n]
+        bodies = model.geom_bodyid[geoms]
+        near = is_link[bodies].any(axis=1)
+        limit = np.where(is_robot[bodies].all(axis=1), 0.0, clearance)
+        out = [f"{_geom_name(model, int(g1))}/{_geom_name(model, int(g2))} ({d * 1e3:.1f} mm)"
+               for (g1, g2), d in zip(geoms[near & (dist < limit)],
+                                      dist[near & (dist < limit)], strict=True)]
     finally:
         model.geom_margin[arm_geom] = saved
     return sorted(set(out))
+
+
+_BODY_MASKS: dict = {}
+
+
+def _body_masks(model: mujoco.MjModel, links: set[int], robot_body_ids: set[int]
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Boolean masks over the bodies of ``model``: the arm links, the robot's bodies."""
+    key = (id(model), model.nbody, frozenset(links), frozenset(robot_body_ids))
+    masks = _BODY_MASKS.get(key)
+    if masks is None:
+        if len(_BODY_MASKS) > 64:
+            _BODY_MASKS.clear()
+        is_link = np.zeros(model.nbody, dtype=bool)
+        is_link[sorted(links)] = True
+        is_robot = np.zeros(model.nbody, dtype=bool)
+        is_robot[sorted(robot_body_ids)] = True
+        masks = _BODY_MASKS[key] = (is_link, is_robot)
+    return masks
 
 
 def _solve_one(model, data, kin, view: View, q_prev, *, seed: int, restarts: int,
@@ -616,10 +638,11 @@ def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinem
 
     For each ring (full rings, then top rings) the candidates of :func:`_candidates` are tried in
     order: a candidate is probed at :data:`PROBE_VIEWS` evenly spread views (few IK restarts,
-    stopping at the first failure), then solved in full (:func:`solve_views`) and the moves into
-    its views checked (:func:`check_paths`); the first whose views are all reachable, and whose
-    moves touch nothing, is taken. If none is, the ring with the most reachable views is taken
-    and its other views are reported unreachable.
+    stopping at the first failure), then solved view by view up to its first unreachable view
+    (:func:`solve_views`) and the moves into its views checked (:func:`check_paths`); the first
+    whose views are all reachable, and whose moves touch nothing, is taken. If none is, the
+    candidates that passed their probe are solved in full (second chances included) and the
+    ring with the most reachable views is taken; its other views are reported unreachable.
 
     Parameters
     ----------
@@ -649,6 +672,7 @@ def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinem
                                            _ring_phases(config), strict=True)):
         top = i >= n_full
         best: tuple[int, Ring, list[View]] | None = None
+        screened: list[tuple[Ring, list[View]]] = []  # passed the probe, not whole
         tried = 0
         for el_deg, d, fill in _candidates(config, desired, radius, K, width, height, lowest,
                                            highest):
@@ -672,15 +696,30 @@ def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinem
                 if best is None:
                     best = (-1, ring, members)
                 continue
-            solve_views(model, data, kin, members, seed=config.seed, q_start=q_last)
-            check_paths(model, data, kin, members, q_last)
-            n_ok = sum(v.reachable for v in members)
-            if best is None or n_ok > best[0]:
-                best = (n_ok, ring, members)
-            if n_ok == len(members):
-                break
-            log.debug("ring %d at %.1f deg, %.3f m: %d of %d views reachable", i, el_deg, d,
-                      n_ok, len(members))
+            # screened in full, stopping at its first unreachable view: a ring is taken only
+            # whole, and a failing view costs every IK restart, so solving the rest of a ring
+            # that already failed (as this did until 2026-11) spent most of a large object's
+            # plan (drawer: 42 candidates for its lowest ring)
+            solve_views(model, data, kin, members, seed=config.seed, q_start=q_last,
+                        stop_at_first_failure=True)
+            if all(v.reachable for v in members):
+                check_paths(model, data, kin, members, q_last)
+                if all(v.reachable for v in members):
+                    best = (len(members), ring, members)
+                    break
+            log.debug("ring %d at %.1f deg, %.3f m: not every view reachable", i, el_deg, d)
+            screened.append((ring, members))
+        else:
+            # no candidate is whole: the one with the most reachable views, each solved in full
+            # (with its second chances from the other side)
+            for ring_c, members_c in screened:
+                solve_views(model, data, kin, members_c, seed=config.seed, q_start=q_last)
+                check_paths(model, data, kin, members_c, q_last)
+                n_ok = sum(v.reachable for v in members_c)
+                if best is None or n_ok > best[0]:
+                    best = (n_ok, ring_c, members_c)
+                if n_ok == len(members_c):
+                    break
         n_ok, ring, members = best
         if n_ok < 0:
             # no candidate passed its probe: solve the preferred one in full, to report why

@@ -209,6 +209,36 @@ def render_set(folder: Path, config: str, n_views: int = 36, seed: int = 0,
     return FixtureSet(folder, names, poses, pts, links)
 
 
+def render_view(path: Path, config: str, T_world_camera: np.ndarray, seed: int = 0) -> Path:
+    """Render one image of configuration ``config`` from ``T_world_camera`` (OpenCV) into
+    ``path`` (a fresh view, e.g. for registration by PnP)."""
+    import cv2
+    import pyrender
+
+    scene = _pyrender_scene(build_parts(config, seed))
+    cam = pyrender.IntrinsicsCamera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2] + 0.5, cy=K[1, 2] + 0.5,
+                                    znear=0.02, zfar=5.0)
+    scene.add(cam, pose=convert_camera_pose(np.asarray(T_world_camera, float)))
+    color, _ = _renderer().render(scene, flags=pyrender.RenderFlags.FLAT)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), color[:, :, ::-1])
+    return path
+
+
+def look_at(eye, target=(0.0, 0.0, 0.08)) -> np.ndarray:
+    """OpenCV ``T_world_camera`` at ``eye`` looking at ``target``, image x horizontal."""
+    c, target = np.asarray(eye, float), np.asarray(target, float)
+    z = target - c
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0, 0, 1.0])
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
+    T[:3, 3] = c
+    return T
+
+
 def true_hinge() -> dict:
     """The hinge moving configuration A to B: axis direction, a point, the angle B - A."""
     angle = -(LID_ANGLE["b"] - LID_ANGLE["a"])

@@ -660,11 +660,16 @@ def test_evaluation_cache_ignores_and_removes_a_killed_build(tmp_path):
     assert (live / "half.png").is_file()  # another live run's files are not removed under it
 
 
-def test_evaluation_cache_keeps_a_concurrent_runs_finished_stage(tmp_path):
-    """Two runs building the same stage at once: the second to finish keeps the first's folder
-    and throws its own work folder away (same inputs, same result), leaving no work folder."""
+def test_evaluation_cache_keeps_a_concurrent_runs_finished_stage(tmp_path, monkeypatch):
+    """Two runs building the same stage at once where the file system gives no lock (where
+    there is one, the second run waits and finds the first's folder): the second to finish
+    keeps the first's folder and throws its own work folder away (same inputs, same result),
+    leaving no work folder."""
+    import contextlib
+
     from sim import cache
 
+    monkeypatch.setattr(cache, "_stage_lock", lambda path: contextlib.nullcontext())
     inputs = {"x": 2}
 
     def build(folder):

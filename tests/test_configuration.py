@@ -16,7 +16,7 @@ from artrecon.configuration import (
 )
 from artrecon.errors import ReconstructionError
 from artrecon.io import load_cameras_json, load_image_folder
-from artrecon.reconstruct import ReconstructConfig, prepare_configuration, reconstruct
+from artrecon.reconstruct import reconstruct
 
 
 @pytest.fixture(scope="module")
@@ -71,17 +71,15 @@ def test_an_interrupted_folder_is_refused_by_name(tmp_path):
         load_configuration(tmp_path)
 
 
-def test_side_by_side_equals_one_after_the_other_and_folders_are_reused(rendered, tmp_path):
-    """jobs=2 (B in a second process) and jobs=1 give the same model; a run given the
-    finished per-configuration folders reuses them and gives it again."""
+def test_side_by_side_equals_one_after_the_other_and_folders_are_reused(
+        rendered, reconstruction_poses, tmp_path):
+    """jobs=2 (B in a second process: the shared run) and jobs=1 give the same model; a run
+    given the finished per-configuration folders reuses them and gives it again."""
     a, b = rendered["a"].folder, rendered["b"].folder
-    m2 = reconstruct(a, b, poses=True, out_dir=tmp_path / "two", progress=False, jobs=2)
+    m2, shared = reconstruction_poses  # reconstruct's default, jobs=2
     m1 = reconstruct(a, b, poses=True, out_dir=tmp_path / "one", progress=False, jobs=1)
-    conf = ReconstructConfig()
-    fa = prepare_configuration(a, tmp_path / "ca", poses=True, config=conf, which="A")
-    fb = prepare_configuration(b, tmp_path / "cb", poses=True, config=conf, which="B")
     m3 = reconstruct(a, b, poses=True, out_dir=tmp_path / "reuse", progress=False,
-                     configurations=(fa, fb))
+                     configurations=(shared / "a", shared / "b"))
     for other in (m1, m3):
         assert len(other.joints) == len(m2.joints) == 1
         np.testing.assert_allclose(other.joints[0].axis_direction, m2.joints[0].axis_direction,

@@ -17,7 +17,7 @@ import sim  # noqa: F401
 from artrecon.model import ArticulatedModel, Joint, Link
 from artrecon.procrustes import Similarity
 from sim import cache, evaluate
-from sim.evaluate import report
+from sim.evaluate import pictures, report
 from sim.scene import load_scene
 
 
@@ -384,16 +384,16 @@ def test_report_gives_the_kinematic_tree_verdict(tmp_path):
 
 
 def test_error_chart_marks_failures():
-    bars = report.error_bars(_results()["scenes"]["toy"], evaluate.GATES)
+    bars = pictures.error_bars(_results()["scenes"]["toy"], evaluate.GATES)
     labels = [b[0] for b in bars]
     assert labels == ["hinge axis angle", "hinge axis position", "hinge state",
                       "segmentation miss", "points off the object", "manipulation rel. err"]
-    img = report.draw_error_chart("toy", bars)
+    img = pictures.draw_error_chart("toy", bars)
     assert img.dtype == np.uint8 and img.shape[2] == 3
     # the axis position (7 mm > 2 mm gate) is drawn red, the axis angle (at its gate) green
     rows = [50 + i * 34 + 17 for i in range(len(bars))]
-    assert tuple(img[rows[0], 235]) == report.GREEN
-    assert tuple(img[rows[1], 235]) == report.RED
+    assert tuple(img[rows[0], 235]) == pictures.GREEN
+    assert tuple(img[rows[1], 235]) == pictures.RED
 
 
 def test_reconstruction_picture_projects_points_where_the_camera_sees_them():
@@ -401,10 +401,10 @@ def test_reconstruction_picture_projects_points_where_the_camera_sees_them():
     T = np.eye(4)  # camera at the origin looking along +z
     img = np.zeros((200, 300, 3), np.uint8)
     pts = np.array([[0.0, 0.0, 1.0], [0.2, 0.1, 1.0], [0.0, 0.0, -1.0]])
-    pic = report.draw_reconstruction(img, K, T, pts, np.array([0, 1, 1]), axes=[])
-    assert tuple(pic[100, 150]) == report.PALETTE[0]
-    assert tuple(pic[110, 170]) == report.PALETTE[1]
-    uv, z = report.project(pts, K, T)
+    pic = pictures.draw_reconstruction(img, K, T, pts, np.array([0, 1, 1]), axes=[])
+    assert tuple(pic[100, 150]) == pictures.PALETTE[0]
+    assert tuple(pic[110, 170]) == pictures.PALETTE[1]
+    uv, z = pictures.project(pts, K, T)
     np.testing.assert_allclose(uv[:2], [[150, 100], [170, 110]])
     assert z[2] < 0  # behind the camera: not drawn
 

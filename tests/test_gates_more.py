@@ -15,6 +15,7 @@ import pytest
 import sim  # noqa: F401
 from artrecon.model import ArticulatedModel, Joint, Link
 from sim import evaluate, metrics
+from sim.evaluate import gates
 from sim.scene import load_scene
 
 # ------------------------------------------------------------------------------ fast: scoring
@@ -155,34 +156,36 @@ def test_manipulation_welds_to_the_scenes_own_arm():
     world = manipulate.build_world(scene)
     assert world.kin.spec.name == "panda"
     assert world.model.body(world.flange_body).name == "panda_link7"
-    data = manipulate._fresh_data(world)
-    cands = manipulate.scene_grasp_candidates(world, data, "pliers_moving")
-    out = manipulate.classify_visibility(world, data, data.qpos[world.qidx].copy(), cands)
+    data = manipulate.fresh_data(world)
+    cands = manipulate.scene_grasp_candidates(world, data, scene.link("pliers_moving").body_ids)
+    pw = manipulate.PlanningWorld.from_scene(world)
+    out = pw.classify_visibility(data.qpos[world.qidx].copy(), cands)
     assert len(out) == len(cands) > 0
 
 
 def test_short_links_still_have_grasp_candidates():
-    """A Barrett finger reaches 4.7 cm from its spread axis, under MIN_LEVER (6 cm): its outer
-    points are used; on a link that reaches farther the MIN_LEVER rule stands."""
+    """A Barrett finger reaches 4.7 cm from its spread axis, under min_lever (6 cm): its outer
+    points are used; on a link that reaches farther the min_lever rule stands."""
     from sim import manipulate
 
     scene = load_scene("barrett_hand")
     world = manipulate.build_world(scene)
-    data = manipulate._fresh_data(world)
+    data = manipulate.fresh_data(world)
     j = scene.joint("finger1_spread")
     est = manipulate.JointEstimate(j.type, j.axis, j.point, "ground truth", j.name)
-    cands = manipulate.scene_grasp_candidates(world, data, "finger1")
+    cands = manipulate.scene_grasp_candidates(world, data, scene.link("finger1").body_ids)
+    cfg = manipulate.PlanningConfig()
 
     def lever(c):
         v = c.point - j.point
         return float(np.linalg.norm(v - (v @ j.axis) * j.axis))
 
     reach = max(lever(c) for c in cands)
-    assert reach < manipulate.MIN_LEVER
-    ranked = manipulate._rank(cands, est, prefer_hidden=True)
-    assert ranked and all(lever(c) >= manipulate.MIN_LEVER_FRACTION * reach for c in ranked)
+    assert reach < cfg.min_lever
+    ranked = manipulate.rank(cands, est, prefer_hidden=True)
+    assert ranked and all(lever(c) >= cfg.min_lever_fraction * reach for c in ranked)
     far = [manipulate.GraspCandidate(j.point + [0.08, 0.0, 0.0], np.array([1.0, 0, 0]))]
-    ranked = manipulate._rank(cands + far, est, prefer_hidden=True)
+    ranked = manipulate.rank(cands + far, est, prefer_hidden=True)
     assert [c.point.tolist() for c in ranked] == [far[0].point.tolist()]
 
 
@@ -197,14 +200,9 @@ def _door_static(scene):
     return dataclasses.replace(scene, joints=joints)
 
 
-class _Stop(Exception):
-    pass
-
-
-def test_manipulation_grasps_a_moving_joint_not_a_static_first_one(monkeypatch):
-    """The defect: sim.manipulate grasped the first joint's link and sim.evaluate followed the
-    first joint, also when that joint was static (nothing estimated, nothing to follow). Both now
-    take the first joint that moved; the evaluation the first moving joint the model estimated."""
+def test_the_demonstration_follows_a_joint_that_moved():
+    """Without a model (a demonstration along the true joint), sim.manipulate's default joint is
+    the first that moved, not a static first one."""
     from sim import manipulate
 
     scene = _door_static(load_scene("cabinet"))
@@ -214,56 +212,58 @@ def test_manipulation_grasps_a_moving_joint_not_a_static_first_one(monkeypatch):
     assert manipulate.default_joint(load_scene("cabinet_door_only")).name == "door_hinge"
     assert manipulate.default_joint(load_scene("cabinet")).name == "door_hinge"
 
-    # the default grasp candidates lie on the target joint's child link (stopped before planning)
-    seen = []
 
-    def spy(world, data, link):
-        seen.append(link)
-        raise _Stop
+def _fake_run(model, k, achieved_m):
+    j = model.joints[k]
+    return {"requested": float(j.motion), "peak_force": 1.0, "rms_force": 0.5,
+            "peak_torque": 0.1, "grip_limits": {"force_n": 60.0, "torque_nm": 3.0},
+            "tracking_max_deg": 0.0, "path_error_max_mm": 0.0, "grasp_point": [0, 0, 0],
+            "grasp_normal": [0, 0, 1], "grasp_hidden": True, "grasp_visibility": "hidden",
+            "grasp_body": "cabinet_drawer", "grasp_lost": False, "grasp_lost_at": None,
+            "planned_in": "registered model", "arm_contacts": [],
+            "estimate": {"type": j.type, "axis": j.axis_direction.tolist(),
+                         "point": j.axis_point.tolist(), "name": j.name},
+            "joints_before": {"door_hinge": 0.0, "drawer_slide": 0.0},
+            "joints_after": {"door_hinge": 0.0, "drawer_slide": achieved_m}}
 
-    monkeypatch.setattr(manipulate, "scene_grasp_candidates", spy)
-    est = manipulate.joint_estimate_from_scene(scene)
-    for joint, link in ((None, "cabinet_drawer"), ("door_hinge", "cabinet_door")):
-        with pytest.raises(_Stop):
-            manipulate.manipulate(scene, est, 0.05, joint=joint)
-        assert seen.pop() == link
 
-    # sim.evaluate: the drawer is the one estimated joint; it is manipulated, grasped on the
-    # drawer, and the result names it
+def test_every_joint_of_the_model_is_moved_and_scored_against_its_true_joint(monkeypatch):
+    """The robot moves the model's joints (every one, in turn), chosen from the model alone;
+    scoring then pairs each with the true joint it estimates. The drawer of a cabinet whose door
+    stayed shut: one model joint, one run, scored on drawer_slide; a run that stops short
+    fails; a model joint that estimates no true joint fails."""
+    scene = _door_static(load_scene("cabinet"))
     pts, links = _samples(scene)
     t, a, p, m = _truth(scene, "drawer_slide")
     model, link_map, _, _ = _model(scene, pts, links, [[0, 1], [2]],
                                    [(t, a, p, 0, 1, m, "e_slide")])
     out = evaluate.score_joints(scene, model, link_map)
-    assert [r["name"] for r in out["joints"]] == ["drawer_slide"] and out["tree_correct"]
     assert out["static_joints"] == ["door_hinge"]
-    assert evaluate.manipulation_target(scene, out["joints"])["name"] == "drawer_slide"
     calls = []
 
     def stage(scene_, registered, idx, *args, **kw):
-        calls.append((idx, kw))
-        return ({"joint_type": "prismatic", "requested": m, "achieved": m, "peak_force": 1.0,
-                 "peak_torque": 0.0, "joint": "drawer_slide", "grasp_point": [0, 0, 0],
-                 "grasp_hidden": True, "grasp_visibility": "hidden", "grasp_body":
-                 "cabinet_drawer", "tracking_max_deg": 0.0, "path_error_max_mm": 0.0,
-                 "estimate": {}}, {"build_s": 0.0}, False)
+        calls.append(idx)
+        return _fake_run(registered, idx, achieved[0]), {"build_s": 0.0}, False
+
+    def reference(*args, **kw):
+        return {"peak_force": 1.0}, {}, False
 
     monkeypatch.setattr(evaluate.runner, "manipulation_stage", stage)
+    monkeypatch.setattr(evaluate.runner, "manipulation_reference_stage", reference)
+    achieved = [m]
     result = {"joints": out["joints"], "cached_stages": []}
-    man = evaluate.runner._manipulation(scene, model, result, None, [], None, None, "")
-    assert calls == [(0, {"swapped": False, "true_joint": "drawer_slide"})]
-    assert man["joint_target"] == "drawer_slide" and man["passes"]
-
-
-def test_manipulation_target_passes_over_a_missed_joint():
-    """cabinet: a model that found the drawer but missed the door manipulates the drawer; one
-    that found neither has nothing to follow."""
-    scene = load_scene("cabinet")
-    rows = [{"name": "door_hinge", "estimated_joint": None},
-            {"name": "drawer_slide", "estimated_joint": "e_slide"}]
-    assert evaluate.manipulation_target(scene, rows)["name"] == "drawer_slide"
-    rows[0]["estimated_joint"] = "e_door"
-    assert evaluate.manipulation_target(scene, rows)["name"] == "door_hinge"
-    none = [{**r, "estimated_joint": None} for r in rows]
-    assert evaluate.manipulation_target(scene, none) is None
-    assert evaluate.manipulation_target(scene, []) is None
+    man = evaluate.runner._manipulations(scene, model, result, None, [], None, None, "")
+    assert calls == [0]
+    (run,) = man["runs"]
+    assert run["true_joint"] == "drawer_slide" and run["passes"] and man["passes"]
+    assert run["relative_error"] == pytest.approx(0.0)
+    # 10% short of the request: fails the manipulation gate
+    achieved[0] = 0.9 * m
+    man = evaluate.runner._manipulations(scene, model, result, None, [], None, None, "")
+    assert not man["passes"]
+    checks = gates.manipulation_checks(man)
+    assert [c.gate for c in checks if not c.passed] == ["manipulation_relative_error"]
+    # a joint of the model that estimates no true joint
+    man = evaluate.runner._manipulations(scene, model, {"joints": [], "cached_stages": []},
+                                         None, [], None, None, "")
+    assert not man["passes"] and man["runs"][0]["true_joint"] is None

@@ -1,16 +1,20 @@
-"""Manipulation in MuJoCo physics along the ground-truth axis, and a deliberately wrong axis.
+"""Manipulation in MuJoCo physics along the ground-truth axis (a demonstration of the execution),
+and deliberately wrong axes: the gripper's grip has a limit, so a wrong axis fails instead of
+dragging the object through its joint.
 
-The true axis must move the joint by the requested amount (within 10%) with moderate grasp forces;
-the same axis tilted by 20 degrees must score clearly worse (the arm fights the joint).
+The true axis must move the joint by the requested amount (within the main job's 5%) with small
+forces; the same axis tilted by 20 degrees must fail (grasp lost, or the motion short).
 """
 
 import numpy as np
 import pytest
 
 import sim  # noqa: F401
+from sim.evaluate import gates
 from sim.manipulate import (
     GraspCandidate,
     JointEstimate,
+    achieved_along,
     build_world,
     joint_estimate_from_scene,
     manipulate,
@@ -19,10 +23,9 @@ from sim.scene import load_scene
 
 #: Requested motions: the scenes' own configuration change (30 deg, 30 deg, 10 cm).
 REQUESTS = {"truck": np.deg2rad(30.0), "drawer": 0.10, "pliers": np.deg2rad(30.0)}
-#: Largest tracking error of the arm's joints (commanded vs actual). The pliers lie flat at table
-#: height, where the arm works near the edge of its reach and its servos lag more (measured 5.9 deg
-#: peak against 1.7 deg for the truck); the achieved-motion gate is the same for all.
-TRACKING_MAX = {"truck": np.deg2rad(5.0), "drawer": np.deg2rad(5.0), "pliers": np.deg2rad(8.0)}
+#: Largest tracking error of the arm's joints (commanded vs actual): the servos follow the plan
+#: with computed-torque feed-forward (measured below 0.1 deg).
+TRACKING_MAX = np.deg2rad(1.0)
 
 
 @pytest.fixture(scope="module")
@@ -34,47 +37,53 @@ def runs():
         est = joint_estimate_from_scene(scene)
         true = manipulate(scene, est, REQUESTS[name], world=world)
         tilted = manipulate(scene, est.tilted(20.0), REQUESTS[name], world=world)
-        out[name] = (true, tilted)
+        out[name] = (scene, true, tilted)
     return out
+
+
+def _achieved(scene, res):
+    j = scene.moving_joints[0]
+    return achieved_along(res, j.type, j.axis, j.name)
 
 
 @pytest.mark.parametrize("name", ["truck", "drawer", "pliers"])
 def test_true_axis_moves_joint_as_requested(runs, name):
-    true, _ = runs[name]
-    assert true.joint == load_scene(name).joints[0].name
-    assert abs(true.achieved - true.requested) < 0.1 * abs(true.requested)
-    assert true.tracking_max < TRACKING_MAX[name]
-    assert true.path_error_max < 0.02
-    assert true.peak_force > 0.0  # the weld carried the load
+    scene, true, _ = runs[name]
+    rel = abs(_achieved(scene, true) - true.requested) / abs(true.requested)
+    assert rel <= gates.GATES["manipulation_relative_error"], rel
+    assert not true.grasp_lost
+    assert true.tracking_max < TRACKING_MAX
+    assert true.path_error_max < 0.005
+    assert 0.0 < true.peak_force < true.grip_limits["force_n"]  # the weld carried the load
 
 
 @pytest.mark.parametrize("name", ["truck", "drawer", "pliers"])
-def test_tilted_axis_scores_clearly_worse(runs, name):
-    true, tilted = runs[name]
+def test_tilted_axis_fails(runs, name):
+    scene, true, tilted = runs[name]
     assert "tilted 20 deg" in tilted.estimate["source"]
-    worse_force = tilted.peak_force > 3.0 * true.peak_force
-    worse_motion = abs(tilted.achieved - tilted.requested) > 0.1 * abs(tilted.requested)
-    assert worse_force or worse_motion
-    assert tilted.path_error_max > true.path_error_max
+    rel = abs(_achieved(scene, tilted) - tilted.requested) / abs(tilted.requested)
+    assert tilted.grasp_lost or rel > gates.GATES["manipulation_relative_error"]
+    assert tilted.peak_force > 3.0 * true.peak_force or tilted.grasp_lost
 
 
 def test_truck_default_grasp_is_hidden(runs):
-    true, _ = runs["truck"]
+    _, true, _ = runs["truck"]
     assert true.grasp_hidden and true.grasp_visibility != "visible"
     assert any("HIDDEN" in m for m in true.log)
     assert true.grasp_body == "truck_bed"
 
 
 def test_grasp_on_wrong_link_does_not_move_joint():
-    """A grasp point on the fixed cabinet welds the gripper to the cabinet: nothing opens."""
+    """A grasp point on the fixed cabinet holds the gripper to the cabinet: nothing opens, and
+    the grip gives way rather than tear the cabinet along."""
     scene = load_scene("drawer")
     est = joint_estimate_from_scene(scene)
     # front of the cabinet below the drawer
     res = manipulate(scene, est, 0.05, grasp_point=[0.12, 0.05, 0.58], grasp_normal=[1, 0, 0])
     assert res.grasp_body == "object"
-    assert res.joint == ""
-    assert res.achieved == 0.0
-    assert res.peak_force > 50.0  # the arm pulls against a fixed cabinet
+    assert abs(res.displacement(scene.moving_joints[0].name)) < 1e-3
+    assert res.grasp_lost and res.peak_force > res.grip_limits["force_n"] - 1e-6 or \
+        res.peak_torque > res.grip_limits["torque_nm"] - 1e-6
 
 
 def test_joint_estimate_validation_and_tilt():

@@ -169,6 +169,41 @@ def test_hand_eye_recovers_known_mount(seed):
     np.testing.assert_allclose(he0.T_flange_camera, X, atol=1e-9)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_hand_eye_estimates_the_scale_with_the_mount(seed):
+    """Without a scale, the flange's metric motions give it: the paper's route needs no other
+    source of scale than the robot."""
+    truth = _truth(seed)
+    T_rc, T_rf = _capture(seed)
+    T_mc = _to_model(truth, T_rc, noise_m=0.0005, seed=seed)
+    he = calibrate_hand_eye(T_rf, T_mc)
+    assert he.scale_estimated
+    assert abs(he.scale / truth.scale - 1.0) < 0.005
+    X = PUMA560_T_FLANGE_CAMERA
+    # 0.5 mm of camera noise: the mount's offset along the optical axis trades with the scale
+    assert np.linalg.norm(he.T_flange_camera[:3, 3] - X[:3, 3]) < 3e-3
+    assert np.rad2deg(rotation_angle(he.T_flange_camera[:3, :3].T @ X[:3, :3])) < 0.1
+    # the same data with the scale given agrees
+    given = calibrate_hand_eye(T_rf, T_mc, truth.scale)
+    assert not given.scale_estimated and given.scale == truth.scale
+    assert np.linalg.norm(given.T_flange_camera[:3, 3] - he.T_flange_camera[:3, 3]) < 3e-3
+
+
+def test_hand_eye_refuses_camera_poses_that_do_not_follow_the_flange():
+    """Camera poses of other images (here: shuffled) give no positive scale or an inconsistent
+    mount; the estimate must not be silently returned as good."""
+    truth = _truth(4)
+    T_rc, T_rf = _capture(4)
+    T_mc = _to_model(truth, T_rc, noise_m=0.0005, seed=4)
+    rng = np.random.default_rng(0)
+    shuffled = T_mc[rng.permutation(len(T_mc))]
+    try:
+        he = calibrate_hand_eye(T_rf, shuffled)
+    except DegenerateError:
+        return
+    assert he.translation_residual_mm > 20.0 or he.rotation_residual_deg > 5.0
+
+
 def test_hand_eye_needs_rotation():
     T = np.tile(np.eye(4), (5, 1, 1))
     T[:, 0, 3] = np.arange(5) * 0.1

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib.util
 import re
+import shutil
 import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -19,8 +20,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from sim.scene import (
+    BUNDLED_SCENES_DIR,
     HOLD_PREFIX,
     SCENES_DIR,
+    STAGE_FILES,
     SceneError,
     hold_joints,
     list_scenes,
@@ -28,6 +31,7 @@ from sim.scene import (
     physics_warnings,
     release_joints,
     scene_path,
+    stage_file,
 )
 
 BUNDLED = ("drawer", "pliers", "truck")
@@ -178,13 +182,73 @@ def _floats(text: str | None, default: str) -> np.ndarray:
     return np.array([float(v) for v in (text if text is not None else default).split()])
 
 
-def _body_transform(el: ET.Element) -> np.ndarray:
-    """T_parent_body of an MJCF body given by pos and quat (the only forms our parser knows)."""
-    unknown = {"euler", "axisangle", "xyaxes", "zaxis"} & set(el.attrib)
-    assert not unknown, f"test parser: body {el.get('name')} uses {unknown}; extend the test"
+#: Orientation attributes of an MJCF frame (body, frame, geom, ...): MuJoCo accepts exactly one.
+ORIENTATIONS = ("quat", "axisangle", "euler", "xyaxes", "zaxis")
+
+
+def _compiler(path: Path) -> dict:
+    """``angle`` and ``eulerseq`` of the scene's <compiler>, looked up in the file and the files
+    it includes (the stage sets them for every scene); MuJoCo's defaults otherwise."""
+    out = {"angle": "degree", "eulerseq": "xyz"}
+    seen = set()
+
+    def visit(p: Path):
+        p = p.resolve()
+        if p in seen or not p.is_file():
+            return
+        seen.add(p)
+        root = ET.parse(p).getroot()
+        for comp in root.iter("compiler"):
+            out.update({k: comp.get(k) for k in ("angle", "eulerseq") if comp.get(k)})
+        for inc in root.iter("include"):
+            f = Path(inc.get("file"))
+            visit(f if f.is_absolute() else (path.parent / f if (path.parent / f).is_file()
+                                             else p.parent / f))
+
+    visit(path)
+    return out
+
+
+def _rotation(el: ET.Element, compiler: dict) -> np.ndarray:
+    """Rotation (3, 3) of an MJCF element from whichever orientation attribute it has, read as
+    MuJoCo documents them (angles in the compiler's unit; euler in its eulerseq, lower case
+    axes rotating with the frame, upper case fixed)."""
+    given = [a for a in ORIENTATIONS if el.get(a) is not None]
+    assert len(given) <= 1, f"{el.tag} {el.get('name')}: several orientations {given}"
+    unit = np.pi / 180 if compiler["angle"] == "degree" else 1.0
+    if not given:
+        return np.eye(3)
+    kind, v = given[0], _floats(el.get(given[0]), "")
+    if kind == "quat":
+        w, x, y, z = v
+        return Rotation.from_quat([x, y, z, w]).as_matrix()
+    if kind == "axisangle":
+        return Rotation.from_rotvec(v[:3] / np.linalg.norm(v[:3]) * v[3] * unit).as_matrix()
+    if kind == "euler":
+        # one elementary rotation per letter: lower case about the rotating (current) axis,
+        # post-multiplied; upper case about the fixed (parent) axis, pre-multiplied
+        R = np.eye(3)
+        for letter, a in zip(compiler["eulerseq"], v * unit, strict=True):
+            r = Rotation.from_rotvec(np.eye(3)["xyz".index(letter.lower())] * a).as_matrix()
+            R = R @ r if letter.islower() else r @ R
+        return R
+    if kind == "xyaxes":
+        x = v[:3] / np.linalg.norm(v[:3])
+        y = v[3:] - (v[3:] @ x) * x
+        y /= np.linalg.norm(y)
+        return np.c_[x, y, np.cross(x, y)]
+    z = v / np.linalg.norm(v)  # zaxis: the smallest rotation taking (0, 0, 1) to z
+    axis = np.cross([0.0, 0.0, 1.0], z)
+    s, c = np.linalg.norm(axis), z[2]
+    if s < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    return Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix()
+
+
+def _body_transform(el: ET.Element, compiler: dict) -> np.ndarray:
+    """T_parent_body of an MJCF body or frame from pos and any orientation form."""
     T = np.eye(4)
-    w, x, y, z = _floats(el.get("quat"), "1 0 0 0")
-    T[:3, :3] = Rotation.from_quat([x, y, z, w]).as_matrix()
+    T[:3, :3] = _rotation(el, compiler)
     T[:3, 3] = _floats(el.get("pos"), "0 0 0")
     return T
 
@@ -193,6 +257,7 @@ def _xml_ground_truth(path: Path) -> dict:
     """Joints of the object from the XML alone: type, world axis and anchor at config A,
     parent and child body, range, both configuration values."""
     root = ET.parse(path).getroot()
+    compiler = _compiler(path)
     configs = {}
     for num in root.iter("numeric"):
         m = re.fullmatch(r"config_([ab]):(.+)", num.get("name", ""))
@@ -202,7 +267,12 @@ def _xml_ground_truth(path: Path) -> dict:
     out = {}
 
     def walk(body: ET.Element, T_world_parent: np.ndarray, parent_name: str, link: str):
-        T = T_world_parent @ _body_transform(body)
+        T = T_world_parent @ _body_transform(body, compiler)
+        if body.tag == "frame":  # a frame only places what it holds
+            for child in body:
+                if child.tag in ("body", "frame"):
+                    walk(child, T, parent_name, link)
+            return
         joints = body.findall("joint")
         this_link = body.get("name") if joints else link
         for jel in joints:
@@ -210,10 +280,13 @@ def _xml_ground_truth(path: Path) -> dict:
             axis = _floats(jel.get("axis"), "0 0 1")
             pos = _floats(jel.get("pos"), "0 0 0")
             jtype = jel.get("type", "hinge")
+            rng = _floats(jel.get("range"), "nan nan")
+            if jtype == "hinge" and compiler["angle"] == "degree":
+                rng = np.deg2rad(rng)
             out[name] = dict(
                 type={"hinge": "revolute", "slide": "prismatic"}[jtype],
                 axis=T[:3, :3] @ axis / np.linalg.norm(axis), point=T[:3, :3] @ pos + T[:3, 3],
-                parent=link, child=this_link, range=_floats(jel.get("range"), "nan nan"),
+                parent=link, child=this_link, range=rng,
                 a=configs[("a", name)], b=configs[("b", name)])
             # Descendants see this joint at its configuration-A value.
             q = configs[("a", name)]
@@ -225,8 +298,9 @@ def _xml_ground_truth(path: Path) -> dict:
             else:
                 M[:3, 3] = axis / np.linalg.norm(axis) * q
             T = T @ M
-        for child in body.findall("body"):
-            walk(child, T, body.get("name"), this_link)
+        for child in body:
+            if child.tag in ("body", "frame"):
+                walk(child, T, body.get("name"), this_link)
 
     walk(obj, np.eye(4), "world", "object")
     return out
@@ -248,6 +322,84 @@ def test_ground_truth_matches_xml(name):
         assert (j.value_a, j.value_b) == (e["a"], e["b"])
     assert scene.links[0].name == "object"
     assert {li.name for li in scene.links} == {"object"} | {j.child for j in scene.joints}
+
+
+#: A scene whose bodies use every orientation form MuJoCo accepts (and a <frame>), in the
+#: compiler's angle unit; configurations are radians and metres whatever that unit.
+_ORIENTED = """<mujoco>
+  <compiler angle="{angle}" eulerseq="{seq}" autolimits="true"/>
+  <worldbody>
+    <body name="object" pos="0 0 0.45" euler="{e0} {e1} {e2}">
+      <geom type="box" size="0.05 0.05 0.02"/>
+      <body name="turned" pos="0.01 0.02 0.03" axisangle="1 2 3 {a1}">
+        <joint name="j_hinge" type="hinge" axis="0 1 0.2" pos="0.01 0 0.02" range="{r0} {r1}"/>
+        <geom type="box" size="0.01 0.01 0.01"/>
+        <body name="welded" pos="0.02 0 0" xyaxes="1 1 0 -1 1 0.3">
+          <geom type="box" size="0.01 0.01 0.01"/>
+          <body name="slider" pos="0 0.01 0.02" zaxis="0.3 -0.2 1">
+            <joint name="j_slide" type="slide" axis="1 0.5 0" pos="0 0 0.01" range="0 0.1"/>
+            <geom type="box" size="0.01 0.01 0.01"/>
+            <frame pos="0 0.01 0" euler="{e2} {e0} {e1}">
+              <body name="last" pos="0.01 0 0" quat="0.9 0.1 -0.3 0.2">
+                <joint name="j_last" type="hinge" axis="1 0 0" range="{r0} {r1}"/>
+                <geom type="box" size="0.01 0.01 0.01"/>
+              </body>
+            </frame>
+          </body>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+  <custom>
+    <numeric name="config_a:j_hinge" data="0.3"/>
+    <numeric name="config_b:j_hinge" data="0.8"/>
+    <numeric name="config_a:j_slide" data="0.02"/>
+    <numeric name="config_b:j_slide" data="0.1"/>
+    <numeric name="config_a:j_last" data="-0.4"/>
+    <numeric name="config_b:j_last" data="0.1"/>
+  </custom>
+</mujoco>
+"""
+
+
+@pytest.mark.parametrize(("angle", "seq"), [("degree", "xyz"), ("degree", "XYZ"),
+                                             ("radian", "zyx"), ("radian", "xYz")])
+def test_every_orientation_form_is_read_as_mujoco_compiles_it(tmp_path, angle, seq):
+    """quat, axisangle, euler (any eulerseq), xyaxes, zaxis and <frame>, in degrees or radians:
+    the ground truth sim.scene reads from the compiled model equals the XML read here, and each
+    body's orientation read here equals MuJoCo's."""
+    deg = angle == "degree"
+    k = 180 / np.pi if deg else 1.0
+    path = tmp_path / "oriented.xml"
+    path.write_text(_ORIENTED.format(angle=angle, seq=seq, e0=0.3 * k, e1=-0.5 * k, e2=1.1 * k,
+                                     a1=0.7 * k, r0=-1.0 * k, r1=1.0 * k))
+    scene = load_scene(path)
+    expected = _xml_ground_truth(path)
+    assert sorted(expected) == sorted(j.name for j in scene.joints)
+    for j in scene.joints:
+        e = expected[j.name]
+        np.testing.assert_allclose(j.axis, e["axis"], atol=1e-9)
+        np.testing.assert_allclose(j.point, e["point"], atol=1e-9)
+        np.testing.assert_allclose(j.range, e["range"], atol=1e-9)
+        assert (j.parent, j.child) == (e["parent"], e["child"])
+    # body by body, at qpos0: world rotation read from the XML against MuJoCo's xmat
+    model = scene.model
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    compiler = _compiler(path)
+    root = ET.parse(path).getroot()
+
+    def walk(el, R):
+        R = R @ _rotation(el, compiler)
+        if el.tag == "body":
+            b = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, el.get("name"))
+            np.testing.assert_allclose(data.xmat[b].reshape(3, 3), R, atol=1e-9,
+                                       err_msg=el.get("name"))
+        for child in el:
+            if child.tag in ("body", "frame"):
+                walk(child, R)
+
+    walk(next(b for b in root.iter("body") if b.get("name") == "object"), np.eye(3))
 
 
 @pytest.mark.parametrize("name", SCENES)
@@ -413,6 +565,73 @@ def test_scene_reconstruction_settings_are_read_and_applied(tmp_path):
     assert config.dense.voxel_pixels == ReconstructConfig().dense.voxel_pixels  # others kept
     assert load_scene("scissors").reconstruct_settings == {"dense.downsample": 1.0}
     assert load_scene("pliers").reconstruct_settings == {}
+
+
+# ------------------------------------------------------------------------------------------
+# Paths: scenes open from any usual working directory, and scenes live anywhere
+# ------------------------------------------------------------------------------------------
+
+REPO = BUNDLED_SCENES_DIR.parent
+
+
+@pytest.mark.parametrize(("cwd", "prefix"), [(".", "scenes/"), ("scenes", ""),
+                                             ("tests", "../scenes/"), ("/", None)])
+def test_every_bundled_scene_opens_in_plain_mujoco_by_relative_path(monkeypatch, cwd, prefix):
+    """mujoco.MjModel.from_xml_path, MuJoCo's own loader, opens every bundled scene from the
+    repository root, from scenes/ and from a folder beside it by a relative path, and from
+    anywhere by the absolute path (the stage's <model file="../robots/..."> included from a
+    relative scene path is looked up in scenes/robots, a link to ../robots)."""
+    names = list_scenes(BUNDLED_SCENES_DIR)
+    assert len(names) >= 9
+    monkeypatch.chdir(REPO / cwd if cwd != "/" else Path("/"))
+    for name in names:
+        path = f"{prefix}{name}.xml" if prefix is not None else str(BUNDLED_SCENES_DIR /
+                                                                  f"{name}.xml")
+        model = mujoco.MjModel.from_xml_path(path)
+        spec_model = mujoco.MjSpec.from_file(path).compile()
+        assert model.nbody == spec_model.nbody == load_scene(name).model.nbody
+
+
+def _copy_scene_elsewhere(name: str, folder: Path) -> Path:
+    """A bundled scene in ``folder`` with only its own file and assets: the stage included by
+    its absolute path, as a scene anywhere on disk writes it."""
+    src = BUNDLED_SCENES_DIR / f"{name}.xml"
+    text = src.read_text()
+    (folder / "assets").mkdir(parents=True)
+    for f in re.findall(r'file="(assets/[^"]+)"', text):
+        shutil.copy(BUNDLED_SCENES_DIR / f, folder / f)
+    stage = re.search(r'<include file="([^"]+)"/>', text).group(1)
+    arm = {v: k for k, v in STAGE_FILES.items()}[stage]
+    text = text.replace(f'<include file="{stage}"/>', f'<include file="{stage_file(arm)}"/>')
+    path = folder / f"{name}.xml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("name", ["pliers", "pliers_panda"])
+def test_a_scene_folder_elsewhere_needs_only_its_xml_and_assets(tmp_path, monkeypatch, name):
+    from sim.robot import load_arm_kinematics
+
+    path = _copy_scene_elsewhere(name, tmp_path / "my_scene")
+    assert sorted(p.name for p in path.parent.iterdir()) == ["assets", f"{name}.xml"]
+    scene, bundled = load_scene(path), load_scene(name)
+    assert scene.path == path and scene.model.nbody == bundled.model.nbody
+    assert [j.name for j in scene.joints] == [j.name for j in bundled.joints]
+    np.testing.assert_array_equal(scene.joints[0].axis, bundled.joints[0].axis)
+    assert load_arm_kinematics(scene.model).spec == load_arm_kinematics(bundled.model).spec
+    assert physics_warnings(scene, 0.2) == {}
+    # MuJoCo's own loader too, by a relative path from the folder's parent
+    monkeypatch.chdir(tmp_path)
+    assert mujoco.MjModel.from_xml_path(f"my_scene/{name}.xml").nbody == bundled.model.nbody
+
+
+def test_a_scene_elsewhere_that_includes_a_missing_stage_is_told_where_the_stage_is(tmp_path):
+    path = tmp_path / "pliers.xml"
+    path.write_text((BUNDLED_SCENES_DIR / "pliers.xml").read_text())
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    message = str(info.value)
+    assert "stage.xml" in message and str(stage_file()) in message and "<include" in message
 
 
 def test_unknown_scene_name_lists_the_scenes():

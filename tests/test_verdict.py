@@ -41,8 +41,20 @@ def _pliers_result(tilt_deg: float = 0.0, swap: bool = False) -> dict:
     link_map = evaluate.link_correspondence(labels_pred, evaluate.rigid_bodies(scene)[labels_true])
     out = evaluate.score_joints(scene, model, link_map)
     return {"scene": "pliers", "error": None, **out, "segmentation_accuracy": 0.99,
-            "segmentation": {"off_surface_share": 0.01},
-            "manipulation": {"requested": 30.0, "achieved": 29.9, "relative_error": 0.1 / 30}}
+            "segmentation": {"off_surface_share": 0.01}, "manipulation": _manipulation(),
+            "registration": {"truth_errors": {"pnp": {"rotation_deg": 0.02,
+                                                      "translation_mm": 0.3,
+                                                      "scale_percent": 0.01}}}}
+
+
+def _manipulation(achieved: float = 29.9, lost: bool = False, force: float = 1.0,
+                  error: str | None = None) -> dict:
+    """The manipulation record of one model joint moved (sim.evaluate.scoring)."""
+    run = {"model_joint": "e_hinge", "true_joint": "pliers_hinge", "error": error,
+           "requested": 30.0, "achieved": None if error else achieved, "unit": "deg",
+           "relative_error": None if error else abs(achieved - 30.0) / 30.0,
+           "grasp_lost": lost, "peak_force_n": force, "force_limit_n": 2.0}
+    return {"runs": [run]}
 
 
 def test_exact_model_passes_every_gate():
@@ -69,9 +81,14 @@ def test_wrong_parent_fails_the_tree_gate():
 @pytest.mark.parametrize("change, gate", [
     ({"segmentation_accuracy": 0.96}, "segmentation_accuracy"),
     ({"segmentation": {"off_surface_share": 0.06}}, "off_object_share"),
-    ({"manipulation": {"requested": 30.0, "achieved": 28.0, "relative_error": 2 / 30}},
-     "manipulation_relative_error"),
-    ({"manipulation": {"requested": None, "reason": "no grasp"}}, "manipulation"),
+    ({"manipulation": _manipulation(achieved=28.0)}, "manipulation_relative_error"),
+    ({"manipulation": _manipulation(error="ManipulationError: no grasp")}, "manipulation"),
+    ({"manipulation": _manipulation(lost=True)}, "manipulation_grasp_held"),
+    ({"manipulation": _manipulation(force=2.5)}, "manipulation_peak_force_n"),
+    ({"manipulation": {"runs": [], "reason": "the model has no joint"}}, "manipulation"),
+    ({"registration": {"truth_errors": {"pnp": {"rotation_deg": 0.7, "translation_mm": 0.3,
+                                                "scale_percent": 0.01}}}},
+     "registration_pnp_rotation_deg"),
     ({"invented_joints": [{"name": "ghost"}]}, "invented_joints"),
 ])
 def test_each_scene_gate_fails_alone(change, gate):

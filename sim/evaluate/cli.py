@@ -5,16 +5,17 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from artrecon.errors import InputError
 from sim import perturb
-from sim.evaluate import report
+from sim.evaluate import report, sweep, sweep_report
 from sim.evaluate.checks import check_run
 from sim.evaluate.config import POSE_SOURCES, EvalConfig
-from sim.evaluate.runner import run
+from sim.evaluate.sweep import run
 from sim.scene import Scene, SceneError, list_scenes, load_scene, physics_warnings
 from sim.views import views_problem
 
@@ -97,6 +98,24 @@ def parser() -> argparse.ArgumentParser:
                    help=f"views per full capture ring (default {default.views})")
     p.add_argument("--seed", type=int, default=default.seed,
                    help=f"seed of every stage (default {default.seed})")
+    g = p.add_argument_group("sweeps (several seeds, runs in parallel)")
+    g.add_argument("--seeds", type=_seeds, metavar="SEEDS",
+                   help="run every scene once per seed: a range 0-4, a list 0,2,7 or both "
+                        "0-2,9; the report then lists every run and per scene the median, "
+                        "worst and spread over seeds (instead of --seed)")
+    g.add_argument("--jobs", type=_positive, metavar="N",
+                   help="runs at once: 1 (default) one after the other in this process; N > 1 "
+                        "N worker processes on this machine; with --backend ray at most N in "
+                        "flight (default: as many as the cluster takes)")
+    g.add_argument("--backend", choices=sweep.BACKENDS, default="local",
+                   help="where runs run: 'local' (this machine, default) or 'ray' (a Ray "
+                        f"cluster; needs the extra: {sweep.RAY_EXTRA})")
+    g.add_argument("--address", metavar="ADDR",
+                   help="with --backend ray: an existing cluster (auto, HOST:PORT or "
+                        "ray://HOST:10001); without it a local cluster is started for the sweep")
+    g.add_argument("--resume", action="store_true",
+                   help="skip the runs that OUT already holds finished (same settings, same "
+                        "code); the others run")
     p.add_argument("--poses", choices=POSE_SOURCES, default=default.poses,
                    help="camera poses: 'fk' the arm's forward kinematics, held fixed and checked "
                         "against the images; 'images' SfM from the images alone (the photo "
@@ -111,6 +130,29 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     perturb.add_arguments(p)
     return p
+
+
+def _seeds(text: str) -> list[int]:
+    try:
+        return sweep.parse_seeds(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def _positive(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
+    return n
+
+
+def sweep_from_args(args: argparse.Namespace) -> sweep.SweepConfig:
+    """The run's :class:`~sim.evaluate.sweep.SweepConfig` (ValueError: a bad combination)."""
+    return sweep.SweepConfig(jobs=args.jobs, backend=args.backend, address=args.address,
+                             resume=args.resume, progress=not args.quiet)
 
 
 def config_from_args(args: argparse.Namespace) -> EvalConfig:
@@ -131,8 +173,13 @@ def main(argv: list[str] | None = None) -> int:
         return validate(names)
     if views_problem(args.views):
         parser_.error(views_problem(args.views))
+    if args.seeds is not None and any(a == "--seed" or a.startswith("--seed=") for a in argv):
+        parser_.error("give either --seed or --seeds, not both")
+    if args.address and args.backend != "ray":
+        parser_.error("--address is the address of a Ray cluster: add --backend ray")
     try:
         ev = config_from_args(args)
+        cfg = sweep_from_args(args)
     except ValueError as err:
         parser_.error(str(err))
     try:  # before any capture: scenes that load and move, an --out off the scenes' files
@@ -140,22 +187,37 @@ def main(argv: list[str] | None = None) -> int:
     except (SceneError, InputError) as err:
         print(f"python -m sim.evaluate: error: {err}", file=sys.stderr)
         return 2
+    if cfg.backend == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            parser_.error(f"--backend ray needs Ray, which is not installed: {sweep.RAY_EXTRA}")
+    seeds = args.seeds or [ev.seed]
     try:
-        results = run(names, ev, args.out, argv)
+        if len(seeds) == 1 and cfg.inline and not cfg.resume:
+            results = run(names, replace(ev, seed=seeds[0]), args.out, argv)
+        else:
+            results = sweep.run_sweep(sweep.plan(names, ev, seeds), args.out, cfg, argv=argv)
+    except sweep.SweepError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
-        print(f"\ninterrupted: the scenes finished so far are in {args.out / 'results.json'}; "
-              "run the same command again to go on (finished stages come from the cache)",
-              file=sys.stderr)
+        print(f"\ninterrupted: the runs finished so far are in {args.out / 'results.json'}; "
+              "run the same command with --resume to go on (finished stages come from the "
+              "cache)", file=sys.stderr)
         return 130
     print()
-    print(report.terminal_table(results))
+    print(sweep_report.sweep_table(results) if "runs" in results
+          else report.terminal_table(results))
     print(f"\nreport: {args.out / 'results.json'}, {args.out / 'results.md'}")
     return finish(results, report_only=args.report_only)
 
 
 def finish(results: dict, report_only: bool = False) -> int:
-    """Print the verdict's last line and return the exit status: 1 if any scene failed a gate
-    or raised an error (0 with ``report_only``, for exploratory runs)."""
+    """Print the verdict's last line and return the exit status: 1 if any scene (any run of a
+    sweep) failed a gate or raised an error (0 with ``report_only``, for exploratory runs)."""
+    if "runs" in results:
+        return finish_sweep(results, report_only)
     scenes = results["scenes"]
     failed = {n: r for n, r in scenes.items() if r.get("error") or not r.get("passed", False)}
     if not failed:
@@ -168,5 +230,32 @@ def finish(results: dict, report_only: bool = False) -> int:
     names = ", ".join(f"{n} ({'error' if r.get('error') else ', '.join(sorted({g['gate'] for g in r.get('failed_gates') or []}))})"  # noqa: E501
                       for n, r in failed.items())
     print(f"FAIL: {len(failed)} of {len(scenes)} scene(s) missed a gate or failed: {names}"
+          + (" (--report-only: exit status 0)" if report_only else ""))
+    return 0 if report_only else 1
+
+
+def finish_sweep(results: dict, report_only: bool = False) -> int:
+    """:func:`finish` of a sweep: a line per run that did not pass (stderr), then the last line
+    naming every such run (scene, seed) and its gates."""
+    runs = results["runs"]
+    failed = [r for r in runs if r["status"] != "passed"]
+    if not failed:
+        print(f"PASS: all {len(runs)} run(s) met every gate")
+        return 0
+    for r in failed:
+        print(f"FAIL {sweep_report.run_name(r)}: {sweep_report.run_reason(r)}", file=sys.stderr)
+
+    def gates_of(r):
+        res = r.get("result") or {}
+        if r["status"] == "not run":
+            return "not run"
+        if r["status"] == "died":
+            return "worker died"
+        if res.get("error"):
+            return "error"
+        return ", ".join(sorted({g["gate"] for g in res.get("failed_gates") or []}))
+
+    names = ", ".join(f"{sweep_report.run_name(r)} ({gates_of(r)})" for r in failed)
+    print(f"FAIL: {len(failed)} of {len(runs)} run(s) missed a gate or failed: {names}"
           + (" (--report-only: exit status 0)" if report_only else ""))
     return 0 if report_only else 1

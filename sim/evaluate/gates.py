@@ -22,6 +22,17 @@ GATES = {
     "off_object_share": 0.05,
     # the arm's motion along the estimated joint, measured along the true joint
     "manipulation_relative_error": 0.05,
+    # the weld's peak force: at most this factor times the force the true joint needs (the same
+    # grasp and motion along the true joint) or the force of a joint as wrong as the gates above
+    # allow (axis turned 0.5 deg and moved 2 mm: the grasp is stiff, so an accepted axis must
+    # not fail for force), and never held to less than the floor (N): a joint that needs almost
+    # nothing still gets the force of a 200 g weight
+    "manipulation_force_factor": 3.0,
+    "manipulation_force_floor_n": 2.0,
+    # registration by the paper's route (PnP of a fresh image + hand-eye), against the truth
+    "registration_pnp_rotation_deg": 0.5,
+    "registration_pnp_translation_mm": 3.0,
+    "registration_pnp_scale_percent": 1.0,
 }
 
 
@@ -30,7 +41,7 @@ GATES = {
 #: and ``manipulation_relative_error``): the tests gate each of them on every bundled scene.
 GATE_NAMES = ("error", "joint_found", "type", "axis_angle_deg", "axis_position_mm",
               "state_error", "tree", "invented_joints", "segmentation_accuracy",
-              "off_object_share", "manipulation")
+              "off_object_share", "manipulation", "registration_pnp")
 
 
 def family(gate: str) -> str:
@@ -39,6 +50,8 @@ def family(gate: str) -> str:
         return "state_error"
     if gate.startswith("manipulation"):
         return "manipulation"
+    if gate.startswith("registration_pnp"):
+        return "registration_pnp"
     return gate
 
 
@@ -131,14 +144,41 @@ def checks(result: dict, manipulate: bool = True) -> list[GateCheck]:
     seg = result.get("segmentation") or {}
     out.append(_at_most("off_object_share", "segmentation", seg.get("off_surface_share"),
                         GATES["off_object_share"]))
+    reg = (result.get("registration") or {}).get("truth_errors", {}).get("pnp")
+    if reg is None:
+        out.append(GateCheck("registration_pnp", "registration", "no PnP route", "ran", False))
+    else:
+        for key, gate in (("rotation_deg", "registration_pnp_rotation_deg"),
+                          ("translation_mm", "registration_pnp_translation_mm"),
+                          ("scale_percent", "registration_pnp_scale_percent")):
+            out.append(_at_most(gate, "registration (PnP route)", reg.get(key), GATES[gate]))
     if manipulate:
-        man = result.get("manipulation") or {}
-        if man.get("requested") is None:
-            out.append(GateCheck("manipulation", "manipulation",
-                                 man.get("reason") or "not run", "a motion", False))
-        else:
-            out.append(_at_most("manipulation_relative_error", "manipulation",
-                                man.get("relative_error"), GATES["manipulation_relative_error"]))
+        out += manipulation_checks(result.get("manipulation") or {})
+    return out
+
+
+def manipulation_checks(man: dict) -> list[GateCheck]:
+    """The gates of each manipulation run (every joint of the model moved in turn): no error,
+    the grasp held, the motion within ``manipulation_relative_error`` of the request along the
+    true joint, the peak force under the run's limit."""
+    runs = man.get("runs") or []
+    if not runs:
+        return [GateCheck("manipulation", "manipulation", man.get("reason") or "not run",
+                          "a motion", False)]
+    out = []
+    for r in runs:
+        subject = f"manipulation of {r['model_joint']}"
+        if r.get("error") or r.get("achieved") is None:
+            out.append(GateCheck("manipulation", subject,
+                                 r.get("error") or r.get("reason") or "no motion", "a motion",
+                                 False))
+            continue
+        out.append(GateCheck("manipulation_grasp_held", subject,
+                             "lost" if r["grasp_lost"] else "held", "held", not r["grasp_lost"]))
+        out.append(_at_most("manipulation_relative_error", subject, r["relative_error"],
+                            GATES["manipulation_relative_error"]))
+        out.append(_at_most("manipulation_peak_force_n", subject, r["peak_force_n"],
+                            r["force_limit_n"]))
     return out
 
 

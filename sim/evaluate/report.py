@@ -1,40 +1,20 @@
-"""The evaluation report: ``results.json``, ``results.md``, pictures and the terminal table.
+"""The evaluation report: ``results.json``, ``results.md`` and the terminal table.
 
-Pictures are drawn with OpenCV (matplotlib is not a dependency):
-
-- ``<scene>_reconstruction.png``: the registered model's points projected into a captured image of
-  configuration A (true camera pose), coloured by the model's link, with the estimated joint axes
-  in red and the true ones in green, like the method's figures;
-- ``<scene>_errors.png``: a bar per figure, as a fraction of its gate (the line at 1.0): green
-  bars pass, red bars fail, the value written beside each.
-
-Every file is written whole or not at all (:mod:`artrecon.io`).
+The pictures are :mod:`sim.evaluate.pictures`, the merged report of a sweep
+:mod:`sim.evaluate.sweep_report`. Every file is written whole or not at all (:mod:`artrecon.io`).
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from artrecon.io import write_bytes_atomic, write_json_atomic
-from sim.evaluate.gates import GATES
-from sim.scene import load_scene
 
 log = logging.getLogger(__name__)
-
-#: Link colours (RGB), cycled; link 0 (usually the base) grey-blue.
-PALETTE = [(90, 140, 230), (250, 180, 40), (170, 90, 220), (40, 200, 200), (240, 110, 160),
-           (140, 200, 60), (200, 120, 60), (120, 120, 120)]
-RED = (230, 30, 30)
-GREEN = (30, 200, 60)
-#: Elevation (deg) of the captured view preferred for the overview picture: high enough to see
-#: the object's top and its joint, low enough to see its sides.
-OVERVIEW_ELEVATION_DEG = 40.0
 
 
 def _num(v):
@@ -153,14 +133,51 @@ def verdict_lines(r: dict) -> list[str]:
         for g in r.get("failed_gates") or [])]
 
 
+def manipulation_lines(man: dict | None) -> list[str]:
+    """results.md lines of a scene's manipulations: one per model joint moved."""
+    if not man:
+        return []
+    if not man.get("runs"):
+        return [f"- manipulation: {man.get('reason') or 'not run'}"]
+    out = []
+    for r in man["runs"]:
+        head = f"- manipulation of {r['model_joint']} (true joint {r.get('true_joint') or '-'})"
+        if r.get("error") or r.get("achieved") is None:
+            out.append(f"{head}: {r.get('error') or r.get('reason')}")
+            continue
+        out.append(
+            f"{head}: {_f(r['achieved'], 2)} of {_f(r['requested'], 2)} {r['unit']} "
+            f"({_f(100 * r['relative_error'], 1)}% off); peak force {_f(r['peak_force_n'], 1)} N "
+            f"(limit {_f(r['force_limit_n'], 1)} N; the true joint needs "
+            f"{_f(r.get('needed_force_n'), 2)} N, at the gates' tolerance "
+            f"{_f(r.get('force_at_gate_tolerance_n'), 2)} N), grasp "
+            f"{'LOST' if r['grasp_lost'] else 'held'}"
+            f"; grasp point {r['grasp_visibility']}"
+            f"{' (hidden from the camera)' if r['grasp_hidden'] else ''} on {r['grasp_body']}")
+    return out
+
+
+def registration_lines(reg: dict | None) -> list[str]:
+    """results.md lines of a scene's registration routes and their errors against the truth."""
+    if not reg:
+        return []
+    out = []
+    for name, e in (reg.get("truth_errors") or {}).items():
+        out.append(f"- registration {name}: {_f(e['rotation_deg'], 3)} deg, "
+                   f"{_f(e['translation_mm'], 2)} mm, scale {_f(e['scale_percent'], 3)}% off the "
+                   f"true registration")
+    return out
+
+
 def summary_rows(results: dict) -> list[list[str]]:
     """One row per (scene, true moving joint): the headline figures in report units."""
     rows = []
     for name, r in results["scenes"].items():
         man = r.get("manipulation") or {}
         man_s = (f"{_f(man.get('achieved'), 1)}/{_f(man.get('requested'), 1)} "
-                 f"{man.get('unit', '')} {_f(man.get('peak_force_n'), 0)} N"
-                 if man.get("requested") is not None else (man.get("reason") and "n/a") or "-")
+                 f"{man.get('unit', '')} {_f(man.get('peak_force_n'), 1)} N"
+                 if man.get("requested") is not None else
+                 ("failed" if man.get("runs") else (man.get("reason") and "n/a") or "-"))
         model = r.get("model") or {}
         hidden = model.get("hidden") or {}
         base = [name, _f(r.get("segmentation_accuracy"), 3),
@@ -218,14 +235,19 @@ def markdown(results: dict) -> str:
             out += [f"**Error** in stage `{r.get('error_stage')}`: {r['error']}", ""]
         reg = r.get("registration") or {}
         if reg:
-            pnp = reg.get("pnp")
-            out += [f"- registration: scale {_f(reg.get('scale_m_per_unit'), 6)} m/unit, "
-                    f"{reg.get('inliers')}/{reg.get('cameras')} cameras, rms "
-                    f"{_f(reg.get('rms_mm'), 2)} mm; PnP route: "
-                    + (f"disagreement {_f(pnp['disagreement']['translation_mm'], 2)} mm rms, "
-                       f"{_f(pnp['disagreement']['rotation_deg'], 3)} deg, scale ratio "
-                       f"{_f(pnp['disagreement']['scale_ratio'], 4)}" if pnp
-                       else f"not available ({reg.get('pnp_reason')})")]
+            routes = reg.get("routes") or {}
+            cc, pnp = routes.get("camera_centres") or {}, routes.get("pnp") or {}
+            agree = (reg.get("agreement") or {}).get("comparison") or {}
+            out += [f"- registration ({reg.get('chosen_route')}): scale "
+                    f"{_f(reg.get('scale_m_per_unit'), 6)} m/unit; camera centres "
+                    f"{cc.get('inliers')}/{cc.get('cameras')} cameras, rms "
+                    f"{_f(cc.get('rms_mm'), 2)} mm; PnP of the fresh view "
+                    + ", ".join(f"{im['inliers']}/{im['matches']} inliers, "
+                                f"{_f(im['reprojection_rms_px'], 2)} px"
+                                for im in pnp.get("images") or [])
+                    + f" (scale from {pnp.get('scale_from')}); routes "
+                    f"{_f(agree.get('translation_mm'), 2)} mm, "
+                    f"{_f(agree.get('rotation_deg'), 3)} deg apart"]
         cam = r.get("camera_pose_error") or {}
         if cam:
             out += [f"- camera poses: position median {_f(cam.get('position_median_mm'), 2)} mm,"
@@ -253,9 +275,8 @@ def markdown(results: dict) -> str:
                     f"true surface at A: "
                     f"{_f(seg.get('accuracy_nearest_surface_at_a'), 3)}"]
         out += tree_lines(r)
-        man = r.get("manipulation")
-        if man:
-            out += [f"- manipulation: {json.dumps({k: man.get(k) for k in ('joint_target', 'requested', 'achieved', 'unit', 'peak_force_n', 'grasp_hidden', 'grasp_body', 'reason') if k in man})}"]  # noqa: E501
+        out += manipulation_lines(r.get("manipulation"))
+        out += registration_lines(r.get("registration"))
         ts = r.get("timings_s") or {}
         if ts:
             out += ["- time (s): " + ", ".join(f"{k} {_f(v, 1)}" for k, v in ts.items())
@@ -264,183 +285,3 @@ def markdown(results: dict) -> str:
         for pic in (f"{name}_reconstruction.png", f"{name}_errors.png"):
             out += ["", f"![{pic}]({pic})"]
     return "\n".join(out) + "\n"
-
-
-# ---------------------------------------------------------------------------- pictures
-
-
-def project(points: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray
-            ) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel coordinates (n, 2) and depths (n,) of world points in an OpenCV camera."""
-    P = np.asarray(points, dtype=float).reshape(-1, 3)
-    T = np.asarray(T_world_camera, dtype=float)
-    Xc = (P - T[:3, 3]) @ T[:3, :3]
-    z = Xc[:, 2]
-    uv = (Xc @ np.asarray(K, float).T)[:, :2] / np.where(np.abs(z) > 1e-9, z, 1e-9)[:, None]
-    return uv, z
-
-
-def draw_reconstruction(image: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray,
-                        points: np.ndarray, labels: np.ndarray,
-                        axes: list[tuple[np.ndarray, np.ndarray, tuple[int, int, int]]],
-                        axis_length: float = 0.25, title: str = "") -> np.ndarray:
-    """Points coloured by link over a darkened image, and axis segments.
-
-    Parameters
-    ----------
-    image : (h, w, 3) uint8 RGB
-    K : (3, 3) float
-    T_world_camera : (4, 4) float
-    points : (n, 3) float
-        World points.
-    labels : (n,) int
-        Link index of each point (colour).
-    axes : list of (centre (3,), direction (3,), RGB colour)
-        Segments of ``axis_length`` (m) centred on ``centre``.
-    title : str
-
-    Returns
-    -------
-    picture : (h, w, 3) uint8 RGB
-    """
-    img = (np.asarray(image, dtype=np.float32)[:, :, :3] * 0.45).astype(np.uint8)
-    h, w = img.shape[:2]
-    uv, z = project(points, K, T_world_camera)
-    order = np.argsort(-z)  # far first, near drawn over them
-    ok = (z[order] > 0)
-    u = np.round(uv[order, 0]).astype(int)
-    v = np.round(uv[order, 1]).astype(int)
-    ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    lab = np.asarray(labels)[order]
-    colours = np.array([PALETTE[k % len(PALETTE)] for k in range(max(1, lab.max() + 1))],
-                       dtype=np.uint8)
-    img[v[ok], u[ok]] = colours[lab[ok]]
-    for centre, direction, colour in axes:
-        d = np.asarray(direction, float) / np.linalg.norm(direction)
-        ends = np.array([centre - 0.5 * axis_length * d, centre + 0.5 * axis_length * d])
-        e_uv, e_z = project(ends, K, T_world_camera)
-        if (e_z > 0).all():
-            p0, p1 = (tuple(int(round(c)) for c in e) for e in e_uv)
-            # true axes (drawn first) wider, so an estimate on top of them leaves them visible
-            cv2.line(img, p0, p1, colour, 6 if colour == GREEN else 2, cv2.LINE_AA)
-            cv2.circle(img, p1, 5, colour, -1, cv2.LINE_AA)
-    if title:
-        cv2.putText(img, title, (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1,
-                    cv2.LINE_AA)
-    cv2.putText(img, "estimated axis", (10, h - 30), cv2.FONT_HERSHEY_SIMPLEX, 0.5, RED, 1,
-                cv2.LINE_AA)
-    cv2.putText(img, "true axis", (10, h - 12), cv2.FONT_HERSHEY_SIMPLEX, 0.5, GREEN, 1,
-                cv2.LINE_AA)
-    return img
-
-
-def error_bars(result: dict, gates: dict) -> list[tuple[str, float | None, float, str]]:
-    """(label, value, gate, unit) of a scene's gated figures; for accuracy-like figures
-    (higher is better) the value is the shortfall ``1 - value`` against ``1 - gate``."""
-    bars = []
-    for j in result.get("joints") or []:
-        n = j["name"]
-        bars.append((f"{n} axis angle", j.get("axis_angle_deg"), gates["axis_angle_deg"], "deg"))
-        if j["type_true"] == "revolute":
-            bars.append((f"{n} axis position", j.get("axis_position_mm"),
-                         gates["axis_position_mm"], "mm"))
-        unit = j.get("state_error_unit", "deg")
-        bars.append((f"{n} state", j.get("state_error"), gates[f"state_error_{unit}"], unit))
-    seg = result.get("segmentation_accuracy")
-    bars.append(("segmentation miss", None if seg is None else 1.0 - seg,
-                 1.0 - gates["segmentation_accuracy"], ""))
-    bars.append(("points off the object", (result.get("segmentation") or {}).get(
-        "off_surface_share"), gates["off_object_share"], ""))
-    man = result.get("manipulation") or {}
-    bars.append(("manipulation rel. err", man.get("relative_error"),
-                 gates["manipulation_relative_error"], ""))
-    return bars
-
-
-def draw_error_chart(title: str, bars: list[tuple[str, float | None, float, str]],
-                     width: int = 720) -> np.ndarray:
-    """Horizontal bars of value/gate with the gate at 1.0 (RGB uint8 image)."""
-    row, top, left, right = 34, 50, 230, 130
-    h = top + row * len(bars) + 40
-    img = np.full((h, width, 3), 255, np.uint8)
-    cv2.putText(img, title, (10, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.65, (0, 0, 0), 1, cv2.LINE_AA)
-    span = width - left - right
-    x_gate = left + span // 2  # value/gate = 1 at the middle; 2 (and beyond) at the end
-    for i, (label, value, gate, unit) in enumerate(bars):
-        y = top + i * row
-        cv2.putText(img, label, (10, y + 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1,
-                    cv2.LINE_AA)
-        if value is None:
-            cv2.putText(img, "n/a (missing)", (left + 5, y + 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
-                        RED, 1, cv2.LINE_AA)
-            continue
-        frac = value / gate if gate > 0 else 0.0
-        x1 = left + int(min(frac, 2.0) / 2.0 * span)
-        colour = GREEN if frac <= 1.0 else RED
-        cv2.rectangle(img, (left, y + 6), (max(x1, left + 1), y + row - 6), colour, -1)
-        text = f"{value:.3g} {unit} (gate {gate:.3g})"
-        cv2.putText(img, text, (min(x1, left + span) + 6, y + 22), cv2.FONT_HERSHEY_SIMPLEX,
-                    0.42, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.line(img, (x_gate, top - 4), (x_gate, top + row * len(bars)), (0, 0, 0), 1)
-    cv2.putText(img, "gate", (x_gate - 16, top + row * len(bars) + 18),
-                cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
-    return img
-
-
-def _write_png(path: Path, rgb: np.ndarray) -> None:
-    ok, buf = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-    if not ok:
-        raise RuntimeError(f"OpenCV could not encode {path}")
-    write_bytes_atomic(path, buf.tobytes())
-
-
-def write_scene_pictures(result: dict, out_dir: Path) -> list[Path]:
-    """The two pictures of a scene (whatever its result allows: none if it failed early)."""
-    from PIL import Image
-
-    out_dir = Path(out_dir)
-    name = result["scene"]
-    written = []
-    if result.get("joints") or result.get("segmentation_accuracy") is not None:
-        path = out_dir / f"{name}_errors.png"
-        _write_png(path, draw_error_chart(f"{name}: errors as a fraction of their gates",
-                                          error_bars(result, GATES)))
-        written.append(path)
-    arrays = result.get("_arrays")
-    if not arrays or "_set_a" not in result:
-        return written
-    set_a = Path(result["_set_a"])
-    truth = json.loads((set_a / "ground_truth" / "poses.json").read_text())
-    cams = json.loads((set_a / "cameras.json").read_text())
-    view = min(truth["images"],
-               key=lambda im: abs(im["view"]["elevation_deg"] - OVERVIEW_ELEVATION_DEG))
-    image = np.asarray(Image.open(set_a / "images" / view["file"]).convert("RGB"))
-    scene = load_scene(result.get("scene_file", name))
-    registered = result["_registered"]
-    samples, sample_link = arrays["_samples"], arrays["_sample_link"]
-    centre = samples.mean(axis=0)
-    size = float(np.linalg.norm(samples.max(0) - samples.min(0)))
-
-    def foot(point, d):  # the axis point nearest the object's centre
-        d = d / np.linalg.norm(d)
-        return point + ((centre - point) @ d) * d
-
-    axes = []
-    for j in scene.moving_joints:
-        child = [k for k, li in enumerate(scene.links) if li.name == j.child][0]
-        c = samples[sample_link == child].mean(0) if j.type == "prismatic" else foot(j.point,
-                                                                                    j.axis)
-        axes.append((c, j.axis, GREEN))
-    for j in registered.joints:
-        pts = registered.links[j.child].points
-        c = pts.mean(0) if j.type == "prismatic" and len(pts) else foot(j.axis_point,
-                                                                      j.axis_direction)
-        axes.append((c, j.axis_direction, RED))
-    pic = draw_reconstruction(image, np.asarray(cams["K"], float),
-                              np.asarray(view["T_world_camera"], float), arrays["_points"],
-                              arrays["_point_labels"], axes, axis_length=0.8 * size,
-                              title=f"{name}: registered model over view {view['file']}")
-    path = out_dir / f"{name}_reconstruction.png"
-    _write_png(path, pic)
-    written.append(path)
-    return written

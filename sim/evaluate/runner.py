@@ -63,21 +63,29 @@ import time
 import traceback
 from pathlib import Path
 
-import numpy as np
-
 from sim import cache, perturb
 from sim.evaluate import gates
 from sim.evaluate.config import EvalConfig
-from sim.evaluate.scoring import score_scene
+from sim.evaluate.scoring import (
+    manipulation_reference_stage,
+    score_manipulation,
+    score_registration,
+    score_scene,
+    summarise_manipulations,
+    true_registration,
+)
 from sim.evaluate.stages import (
     configuration_chains,
+    fresh_view_stage,
+    last_arm_pose,
     manipulation_stage,
     reconstruct_stage,
     register_configuration,
     register_stage,
     versions,
 )
-from sim.scene import Scene, load_scene
+from sim.scene import load_scene
+from sim.texture_check import check_texture
 
 log = logging.getLogger(__name__)
 
@@ -99,11 +107,14 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
     try:
         scene = load_scene(name)
         result["scene"] = scene.name
+        stage = "texture_check"  # a part too plain for features fails here, in seconds
+        check_texture(scene)
+        stage = "load"
         scene = perturb.apply_motion(scene, ev.perturb.motion_deg, ev.perturb.motion_mm)
         result["scene_file"] = str(scene.path)
         scene_hash = cache.scene_hash(scene.path)
         result["scene_hash"] = scene_hash
-        sets, keys, confs = {}, [], {}
+        sets, keys, confs, capture_sets = {}, [], {}, {}
         stage = "capture_a"
         chains = configuration_chains(scene, ev, cache_root, scene_hash,
                                       dict(scene.reconstruct_settings))
@@ -115,6 +126,7 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
             chain = chains[c]
             meta = chain["capture"]
             sets[c], confs[c] = chain["set"], chain["configuration"]
+            capture_sets[c] = chain["capture_set"]
             keys.append(chain["key"])
             if chain["perturb"]:
                 result[f"perturb_{c}"] = chain["perturb"]
@@ -149,12 +161,19 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
                                        "dense_points", "matches", "match_outliers",
                                        "pose_agreement")}}
 
+        stage = "fresh_view"
+        t = time.perf_counter()
+        fresh, _, fhit = fresh_view_stage(scene, capture_sets["a"], keys[0], ev, cache_root)
+        result["cached_stages"] += ["fresh_view"] if fhit else []
+        timings["fresh_view"] = time.perf_counter() - t
+
         stage = "registration"
         t = time.perf_counter()
-        reg = register_stage(model, model_dir, sets["a"], scene, ev.seed)
+        reg = register_stage(model_dir, sets["a"], fresh, ev.seed)
         timings["registration"] = time.perf_counter() - t
-        result["registration"] = reg["summary"]
         registered = reg["registered"]
+        result["registration"] = {**reg["summary"], **score_registration(
+            reg["routes"], true_registration(model_dir, sets["a"]), model)}
 
         stage = "scoring"
         t = time.perf_counter()
@@ -170,9 +189,11 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
 
         if ev.manipulate:
             stage = "manipulation"
-            result["manipulation"] = _manipulation(scene, registered, result, sets["a"], keys,
-                                                   ev, cache_root, scene_hash)
-            timings["manipulation"] = result["manipulation"].pop("_build_s", None)
+            t = time.perf_counter()
+            result["manipulation"] = _manipulations(scene, registered, result,
+                                                    last_arm_pose(capture_sets["a"]), keys, ev,
+                                                    cache_root, scene_hash)
+            timings["manipulation"] = time.perf_counter() - t
     except Exception as err:
         result["error"] = f"{stage}: {type(err).__name__}: {err}"
         result["error_stage"] = stage
@@ -184,43 +205,27 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
     return result
 
 
-def manipulation_target(scene: Scene, rows: list[dict]) -> dict | None:
-    """The joint row (:func:`score_joints`) of the joint to manipulate: the scene's first moving
-    joint that an estimated joint is paired with. Static joints have no row (nothing moved, so
-    nothing was estimated to follow); a moving joint the model missed is passed over for the next
-    one. None if no moving joint was estimated."""
-    by_name = {r["name"]: r for r in rows}
-    return next((by_name[j.name] for j in scene.moving_joints
-                 if by_name.get(j.name, {}).get("estimated_joint") is not None), None)
-
-
-def _manipulation(scene, registered, result, set_a, keys, ev, cache_root, scene_hash) -> dict:
-    """Manipulation entry of the results (requested/achieved in deg or mm)."""
-    row = manipulation_target(scene, result["joints"])
-    if row is None:
-        return {"requested": None, "achieved": None, "peak_force_n": None,
-                "reason": "no moving joint of the scene has an estimated joint paired with it: "
-                          "nothing to follow"}
-    idx = next(k for k, j in enumerate(registered.joints) if j.name == row["estimated_joint"])
-    res, meta, hit = manipulation_stage(scene, registered, idx, set_a, keys, ev, cache_root,
-                                        scene_hash, swapped=bool(row.get("links_swapped")),
-                                        true_joint=row["name"])
-    if hit:
-        result["cached_stages"].append("manipulation")
-    k = np.rad2deg(1.0) if res["joint_type"] == "revolute" else 1e3
-    unit = "deg" if res["joint_type"] == "revolute" else "mm"
-    requested, achieved = res["requested"] * k, res["achieved"] * k
-    rel = abs(achieved - requested) / abs(requested) if requested else None
-    return {"requested": requested, "achieved": achieved, "unit": unit,
-            "peak_force_n": res["peak_force"], "peak_torque_nm": res["peak_torque"],
-            "relative_error": rel,
-            "passes": rel is not None and rel <= gates.GATES["manipulation_relative_error"],
-            "joint_target": row["name"], "joint_moved": res["joint"],
-            "grasp_point": res["grasp_point"],
-            "grasp_hidden": res["grasp_hidden"], "grasp_visibility": res["grasp_visibility"],
-            "grasp_body": res["grasp_body"], "tracking_max_deg": res["tracking_max_deg"],
-            "path_error_max_mm": res["path_error_max_mm"], "estimate": res["estimate"],
-            "_build_s": meta["build_s"]}
+def _manipulations(scene, registered, result, q_start, keys, ev, cache_root,
+                   scene_hash) -> dict:
+    """Every joint of the model moved in turn, each as the model says (:func:`manipulation_stage`:
+    planned from the registered model alone); then scored: the true joint each estimates (the
+    scoring's pairing), how far it moved against the requested motion, the force against the
+    force the true joint needs (:func:`manipulation_reference_stage`)."""
+    by_est = {r["estimated_joint"]: r for r in result.get("joints") or []
+              if r.get("estimated_joint") is not None}
+    runs = []
+    for k, j in enumerate(registered.joints):
+        run, _, hit = manipulation_stage(scene, registered, k, q_start, keys, ev, cache_root,
+                                         scene_hash)
+        if hit:
+            result["cached_stages"].append(f"manipulation[{j.name}]")
+        row = by_est.get(j.name)
+        reference = None
+        if row is not None and not run.get("error"):
+            reference, _, _ = manipulation_reference_stage(scene, row["name"], run, q_start,
+                                                           cache_root, scene_hash)
+        runs.append(score_manipulation(scene, j.name, run, row, reference))
+    return summarise_manipulations(runs)
 
 
 # ---------------------------------------------------------------------------- run
@@ -234,28 +239,3 @@ def run_meta(ev: EvalConfig, command: str) -> dict:
             "perturbation": ev.perturb.changed(), "command": command,
             "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "scene_hashes": {}, "gates": gates.GATES, "platform": platform.platform()}
-
-
-def run(names: list[str], ev: EvalConfig, out_dir: Path, argv: list[str] | None = None) -> dict:
-    """Evaluate scenes and write the report folder. Returns the results dict (results.json)."""
-    from tqdm import tqdm
-
-    from sim.evaluate import report
-
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    results = {"scenes": {},
-               "meta": run_meta(ev, " ".join(["python -m sim.evaluate", *(argv or [])]))}
-    for name in tqdm(names, desc="scenes", unit="scene", disable=not ev.progress):
-        res = evaluate_scene(name, ev, out_dir)
-        results["meta"]["scene_hashes"][res["scene"]] = res.get("scene_hash")
-        try:
-            report.write_scene_pictures(res, out_dir)
-        except Exception as err:  # pictures must not sink the numbers
-            log.warning("%s: pictures failed: %s", res["scene"], err)
-            res["pictures_error"] = f"{type(err).__name__}: {err}"
-        results["scenes"][res["scene"]] = report.jsonable_scene(res)
-        report.write_results(results, out_dir)  # after every scene: a killed run keeps the rest
-    return results
-
-

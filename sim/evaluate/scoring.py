@@ -37,7 +37,7 @@ TABLE_NORMAL = (0.0, 0.0, 1.0)
 
 
 def sample_surface(scene: Scene, configuration: str = "a", spacing: float = SURFACE_SPACING_M,
-                   seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                   seed: int = 0, normals: bool = False):
     """Points sampled uniformly by area on the object's visual meshes, in the world frame.
 
     Parameters
@@ -54,6 +54,9 @@ def sample_surface(scene: Scene, configuration: str = "a", spacing: float = SURF
     points : (m, 3) float
     links : (m,) int
         Index into ``scene.links`` of each sample's link.
+    normals : (m, 3) float
+        Only with ``normals=True``: the unit normal of each sample's triangle (the mesh's
+        winding: outward).
     """
     model = scene.model
     data = scene.make_data(configuration)
@@ -87,7 +90,10 @@ def sample_surface(scene: Scene, configuration: str = "a", spacing: float = SURF
     s1 = np.sqrt(r1)
     w = np.stack([1 - s1, s1 * (1 - r2), s1 * r2], axis=1)
     pts = np.einsum("nk,nkd->nd", w, T[idx])
-    return pts, L[idx]
+    if not normals:
+        return pts, L[idx]
+    n_ = np.cross(T[idx, 1] - T[idx, 0], T[idx, 2] - T[idx, 0])
+    return pts, L[idx], n_ / np.linalg.norm(n_, axis=1, keepdims=True)
 
 
 # ---------------------------------------------------------------------------- scoring
@@ -388,3 +394,160 @@ def score_scene(scene: Scene, registered, sfm_poses: dict, T_reg, set_a: Path,
     return out
 
 
+
+
+def score_registration(routes: dict, T_true, model) -> dict:
+    """Each registration route's error against the true registration (rotation deg, translation
+    mm at the model's points, scale %): ``{"truth_errors": {route: {...}}}``."""
+    from artrecon.register import true_registration_error
+
+    pts = np.concatenate([np.asarray(lk.points, float) for lk in model.links if len(lk.points)])
+    return {"truth_errors": {name: true_registration_error(T, T_true, pts)
+                             for name, T in routes.items()}}
+
+
+def score_manipulation(scene: Scene, model_joint: str, run: dict, row: dict | None,
+                       reference: dict | None) -> dict:
+    """One manipulation of a model joint, scored: the true joint it estimates (``row``, the
+    pairing of :func:`score_joints`), its displacement in the sense of the estimate against the
+    requested motion (deg or mm), the weld's peak force against the limit: the largest of
+    ``force_factor`` times the force the true joint needs, the force of a joint as wrong as the
+    accuracy gates allow (both from ``reference``) and ``force_floor_n``
+    (:data:`sim.evaluate.gates.GATES`)."""
+    from sim.evaluate.gates import GATES
+
+    out = {"model_joint": model_joint, "true_joint": None if row is None else row["name"],
+           "error": run.get("error")}
+    est = run.get("estimate") or {}
+    rev = est.get("type") == "revolute"
+    k, unit = (np.rad2deg(1.0), "deg") if rev else (1e3, "mm")
+    out.update(unit=unit, requested=k * float(run["requested"]))
+    if run.get("error"):
+        return {**out, "achieved": None, "relative_error": None, "passes": False}
+    out.update({key: run[key] for key in ("grasp_point", "grasp_normal", "grasp_hidden",
+                                          "grasp_visibility", "grasp_body", "grasp_lost",
+                                          "grasp_lost_at", "planned_in", "arm_contacts")})
+    out.update(peak_force_n=run["peak_force"], rms_force_n=run["rms_force"],
+               peak_torque_nm=run["peak_torque"], grip_limits=run["grip_limits"],
+               tracking_max_deg=run["tracking_max_deg"],
+               path_error_max_mm=run["path_error_max_mm"],
+               moved={n: run["joints_after"][n] - run["joints_before"][n]
+                      for n in run["joints_after"]
+                      if abs(run["joints_after"][n] - run["joints_before"][n]) > 1e-5})
+    if row is None:
+        return {**out, "achieved": None, "relative_error": None, "passes": False,
+                "reason": "the model's joint estimates no true joint (an invented joint)"}
+    tj = scene.joint(row["name"])
+    raw = run["joints_after"][tj.name] - run["joints_before"][tj.name]
+    sense = 1.0 if (tj.type != est["type"] or float(np.dot(tj.axis, est["axis"])) >= 0) else -1.0
+    achieved = k * sense * raw
+    rel = abs(achieved - out["requested"]) / abs(out["requested"]) if out["requested"] else None
+    needed = None if not reference or reference.get("error") else reference["peak_force"]
+    tolerated = ((reference or {}).get("at_gate_tolerance") or {}).get("peak_force")
+    limit = max(GATES["manipulation_force_factor"] * (needed or 0.0), tolerated or 0.0,
+                GATES["manipulation_force_floor_n"])
+    out.update(achieved=achieved, relative_error=rel, needed_force_n=needed,
+               force_at_gate_tolerance_n=tolerated, reference=reference, force_limit_n=limit)
+    out["passes"] = bool(rel is not None and rel <= GATES["manipulation_relative_error"]
+                         and not run["grasp_lost"] and run["peak_force"] <= limit)
+    return out
+
+
+def summarise_manipulations(runs: list[dict]) -> dict:
+    """The manipulation record of a scene: every run, and the worst figures over them."""
+    done = [r for r in runs if r.get("achieved") is not None]
+    worst = max(done, key=lambda r: r["relative_error"], default=None)
+    return {"runs": runs, "joints_moved": len(runs),
+            "requested": None if worst is None else worst["requested"],
+            "achieved": None if worst is None else worst["achieved"],
+            "unit": None if worst is None else worst["unit"],
+            "relative_error": None if worst is None else worst["relative_error"],
+            "peak_force_n": max((r["peak_force_n"] for r in done), default=None),
+            "grasp_hidden_any": any(r.get("grasp_hidden") for r in done),
+            "passes": bool(runs) and all(r["passes"] for r in runs),
+            "reason": None if runs else "the model has no joint: nothing to move"}
+
+
+# ---------------------------------------------------------------------------- references
+# What the truth says a perfect answer would have given: computed after the fact, for scoring.
+
+
+def true_registration(model_dir: Path, set_a: Path):
+    """The true model-to-world similarity (an artrecon Similarity; scoring only): configuration
+    A's SfM camera centres against the true camera centres of ``ground_truth/poses.json``."""
+    from artrecon.procrustes import similarity_transform
+    from sim.evaluate.stages import sfm_camera_poses
+
+    sfm = sfm_camera_poses(model_dir, "a")
+    truth = read_json(Path(set_a) / "ground_truth" / "poses.json")
+    true = {im["file"]: np.asarray(im["T_world_camera"], float) for im in truth["images"]}
+    names = [n for n in sorted(sfm) if n in true]
+    return similarity_transform(np.array([sfm[n][:3, 3] for n in names]),
+                                np.array([true[n][:3, 3] for n in names]))
+
+
+def gate_tolerance_estimates(tj) -> list:
+    """Two estimates of the true joint ``tj`` as wrong as the accuracy gates allow: its axis
+    turned by the axis-angle gate about each of two perpendiculars through its point and, for a
+    revolute joint, moved by the axis-position gate along the other perpendicular."""
+    from artrecon.geometry import rotation_about
+    from sim.evaluate.gates import GATES
+    from sim.manipulate import JointEstimate
+
+    a = np.asarray(tj.axis, float)
+    ref = np.array([0.0, 0.0, 1.0]) if abs(a[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    u = np.cross(a, ref)
+    u /= np.linalg.norm(u)
+    v = np.cross(a, u)
+    out = []
+    for turn, shift in ((u, v), (v, u)):
+        axis = rotation_about(turn, np.deg2rad(GATES["axis_angle_deg"])) @ a
+        point = np.asarray(tj.point, float) + (1e-3 * GATES["axis_position_mm"] * shift
+                                               if tj.type == "revolute" else 0.0)
+        out.append(JointEstimate(tj.type, axis, point, "ground truth at the gates' tolerance",
+                                 tj.name))
+    return out
+
+
+def manipulation_reference_stage(scene: Scene, true_joint: str, run: dict, q_start,
+                                 cache_root: Path, scene_hash: str) -> tuple[dict, dict, bool]:
+    """Scoring only, after the motion: the same grasp point and the same requested motion, but
+    along the scene's TRUE joint ``true_joint`` (the force the joint itself asks for: friction,
+    damping, inertia, the arm's own dynamics), and along the true joint made as wrong as the
+    accuracy gates allow (:func:`gate_tolerance_estimates`: the force an axis the gates accept
+    may cost, through the stiff grasp). The manipulation's force limit is the larger of a
+    multiple of the first and the worst of the others. Cached; a reference that cannot be
+    planned or grasped is recorded (``error``)."""
+    from sim import cache
+    from sim.evaluate.stages import _manipulate_sources
+    from sim.manipulate import JointEstimate, ManipulationError, manipulate
+
+    tj = scene.joint(true_joint)
+    est = JointEstimate(tj.type, tj.axis, tj.point, "ground truth (force reference)", tj.name)
+    sense = 1.0 if float(np.dot(tj.axis, run["estimate"]["axis"])) >= 0 else -1.0
+    amount = sense * float(run["requested"])
+    inputs = {"scene_hash": scene_hash, "joint": true_joint, "amount": amount,
+              "grasp": [run["grasp_point"], run["grasp_normal"]], "q_start": list(q_start),
+              "code": _manipulate_sources(), "tolerance": 1}
+
+    def one(e) -> dict:
+        try:
+            res = manipulate(scene, e, amount, grasp_point=run["grasp_point"],
+                             grasp_normal=run["grasp_normal"], q_start=q_start,
+                             joint=true_joint)
+            return {"peak_force": res.peak_force, "rms_force": res.rms_force,
+                    "peak_torque": res.peak_torque, "grasp_lost": res.grasp_lost,
+                    "displacement": res.displacement(true_joint)}
+        except ManipulationError as err:
+            return {"error": f"{type(err).__name__}: {err}"}
+
+    def build(folder: Path) -> dict:
+        out = one(est)
+        tol = [one(e) for e in gate_tolerance_estimates(tj)]
+        ok = [t["peak_force"] for t in tol if "error" not in t]
+        out["at_gate_tolerance"] = {"runs": tol, "peak_force": max(ok) if ok else None}
+        cache.write_json_atomic(folder / "reference.json", out)
+        return {}
+
+    folder, meta, hit = cache.cached_stage(cache_root, "manipulation_reference", inputs, build)
+    return read_json(folder / "reference.json"), meta, hit

@@ -49,8 +49,9 @@ def _reconstruct_sources() -> str:
 
 def _manipulate_sources() -> str:
     from sim import manipulate, robot, scene, views
+    from sim.manipulate import estimate, execute, planning, world
 
-    return cache.source_hash([manipulate, robot, scene, views])
+    return cache.source_hash([manipulate, estimate, execute, planning, world, robot, scene, views])
 
 
 def _capture_inputs(scene: Scene, configuration: str, ev: EvalConfig, scene_hash: str) -> dict:
@@ -138,7 +139,7 @@ def configuration_chain(scene: Scene, configuration: str, ev: EvalConfig, cache_
     except Exception as err:
         err.stage = stage  # which stage failed, for the scene's record (crosses processes)
         raise
-    return {"set": set_dir, "capture": meta, "key": key, "perturb": pmeta,
+    return {"set": set_dir, "capture_set": folder, "capture": meta, "key": key, "perturb": pmeta,
             "configuration": conf,
             "hits": [n for n, h in ((f"capture_{configuration}", hit),
                                     (f"configuration_{configuration}", chit)) if h],
@@ -159,9 +160,13 @@ def configuration_chains(scene: Scene, ev: EvalConfig, cache_root: Path, scene_h
     pool = future = None
     if ev.parallel_capture:
         import multiprocessing
+        import os
         from concurrent.futures import ProcessPoolExecutor
         from dataclasses import replace
 
+        # one core each: the CPU rasteriser's threads (read when a process first renders) and,
+        # in artrecon's per-configuration stage, BLAS and OpenCV (artrecon.configuration)
+        os.environ.setdefault("LP_NUM_THREADS", "1")
         pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
         # the worker ignores Ctrl-C; this process stops it (one line, no worker traceback)
         future = workers.submit(pool, configuration_chain, scene, "b",
@@ -226,7 +231,8 @@ def sfm_camera_poses(model_dir: Path, configuration: str = "a") -> dict[str, np.
 def register_configuration(model_dir: Path, set_dir: Path, configuration: str, seed: int):
     """The similarity from one configuration's SfM frame to the world (camera centres of the
     reconstruction against the arm's FK camera positions of the capture), the SfM poses and the
-    registration record."""
+    registration record. Used by scoring for configuration B (its points are scored where B's
+    reconstruction saw them); the model itself is registered by :func:`register_stage`."""
     from artrecon.register import register_camera_centres
 
     sfm = sfm_camera_poses(model_dir, configuration)
@@ -243,122 +249,93 @@ def register_configuration(model_dir: Path, set_dir: Path, configuration: str, s
     return reg, sfm, cams, names
 
 
-def register_stage(model, model_dir: Path, set_a: Path, scene: Scene, seed: int) -> dict:
-    """Register the model into the world frame (camera-centre route) and try the PnP route.
+def last_arm_pose(capture_set: Path) -> list[float]:
+    """The arm's joint angles at the last image of a capture: where the capture left it (the
+    capture's own record, before any perturbation of what the robot reports)."""
+    cams = read_json(Path(capture_set) / "cameras.json")
+    q = next((im["q"] for im in reversed(cams["images"]) if im.get("q") is not None), None)
+    if q is None:
+        raise StageError("fresh_view", f"no image of {capture_set} has the arm's joint angles")
+    return q
+
+
+def fresh_view_stage(scene: Scene, capture_set: Path, capture_key: str, ev: EvalConfig,
+                     cache_root: Path) -> tuple[Path, dict, bool]:
+    """One image after the reconstruction, from an arm pose in neither image set (cached):
+    :func:`sim.capture.capture_fresh_view` from where the capture of A left the arm, its pose
+    file perturbed like the capture's (robustness runs). Returns its folder, metadata, hit."""
+    from sim.capture import capture_fresh_view
+
+    q_start = last_arm_pose(capture_set)
+
+    def build(folder: Path) -> dict:
+        fv = capture_fresh_view(perturb.capture_scene(scene, ev.perturb, "a"), "a", q_start,
+                                folder / "fresh", seed=ev.seed)
+        perturb.perturb_fresh_pose(fv.pose_file, scene, ev.perturb, ev.seed)
+        return {"q": fv.q.tolist()}
+
+    inputs = {"capture": capture_key, "seed": ev.seed, "code": _capture_sources(),
+              "perturb": ev.perturb.changed()}
+    folder, meta, hit = cache.cached_stage(cache_root, "fresh_view", inputs, build)
+    return folder / "fresh", meta, hit
+
+
+def register_stage(model_dir: Path, set_a: Path, fresh: Path, seed: int) -> dict:
+    """Register the model with artrecon's registration stage (:func:`artrecon.register.register`),
+    both routes: (a) the SfM camera centres of A against the arm's FK camera positions of
+    cameras.json; (b) PnP of the fresh image, its flange pose from the arm's FK and the hand-eye
+    transform calibrated from the capture of A (flange poses and SfM poses), with the scale that
+    calibration estimates: nothing borrowed from route (a). Routes that disagree are refused
+    (RegistrationMismatchError).
 
     Returns
     -------
-    dict with ``registered`` (ArticulatedModel in the world frame, metres), ``T`` (Similarity),
-    ``sfm_poses`` ({name: T_model_camera}), ``summary`` (JSON-ready, incl. ``pnp``).
+    dict with ``registered`` (ArticulatedModel, world frame, metres), ``T`` (Similarity of
+    route (a)), ``routes`` ({route: Similarity}), ``sfm_poses`` ({name: T_model_camera}) and
+    ``summary`` (JSON-ready report).
     """
-    from artrecon.register import apply_registration
+    from artrecon.register import FreshImage, read_fresh_pose, register
 
-    reg, sfm, cams, names = register_configuration(model_dir, set_a, "a", seed)
-    registered = apply_registration(model, reg.T_robot_model)
-    summary = {"method": "camera centres (SfM of A vs FK), RANSAC Umeyama",
-               **reg.summary(), "images_used": len(names), "images_of_a": len(cams["images"])}
-    summary["pnp"], summary["pnp_reason"] = None, None
-    try:
-        summary["pnp"] = _pnp_route(model, model_dir, set_a, scene, cams, sfm, reg, seed)
-    except Exception as err:  # a route that does not work is reported, not hidden
-        summary["pnp_reason"] = f"{type(err).__name__}: {err}"
-        log.warning("%s: PnP registration route failed: %s", scene.name, err)
-    else:
-        # issue 9: the two routes' agreement, overall and at each joint's axis, joins the
-        # joints' confidence records of the registered model; routes that disagree refuse
-        from artrecon.confidence import check_registration_agreement, registration_agreement
-
-        summary["pnp"]["agreement"] = registration_agreement(
-            model, reg.T_robot_model, summary["pnp"].pop("_T"), registered=registered)
-        check_registration_agreement(summary["pnp"]["agreement"])
-    return {"registered": registered, "T": reg.T_robot_model, "sfm_poses": sfm,
-            "summary": summary}
+    pose = read_fresh_pose(Path(fresh) / "pose.json")
+    res = register(model_dir, camera_poses=Path(set_a) / "cameras.json",
+                   images=[FreshImage(Path(fresh) / "fresh.png", pose.get("T_world_flange"))],
+                   out_dir=False, seed=seed)
+    summary = {"chosen_route": res.route, **res.report()}
+    return {"registered": res.model, "T": res.T_robot_model,
+            "routes": {k: v["T"] for k, v in res.routes.items()},
+            "sfm_poses": sfm_camera_poses(model_dir, "a"), "summary": summary}
 
 
-def _pnp_route(model, model_dir, set_a, scene, cams, sfm, reg, seed) -> dict:
-    """The paper's registration route on the capture of A; its disagreement with route (a)."""
-    import pycolmap
-    from PIL import Image
+def manipulation_stage(scene: Scene, registered, model_joint: int, q_start, keys: list[str],
+                       ev: EvalConfig, cache_root: Path, scene_hash: str
+                       ) -> tuple[dict, dict, bool]:
+    """Move the model's joint ``model_joint`` as the model says (cached): the arm plans from the
+    registered model alone (:func:`sim.manipulate.manipulate` with ``registered``), grasps the
+    joint's child link and moves it by the model's motion A -> B along the model's axis, from
+    ``q_start`` (where the capture left the arm). Returns the result record, stage metadata,
+    hit. A plan or grasp that fails is recorded (``error``), not raised."""
+    from sim.manipulate import ManipulationError, joint_estimate_from_model, manipulate
 
-    from artrecon.register import (
-        calibrate_hand_eye,
-        compare_registrations,
-        landmarks_from_tracks,
-        localize_image,
-        register_by_pnp,
-        sift_features,
-    )
-    from artrecon.sfm import read_features
-    from sim import robot
-
-    kin = robot.load_arm_kinematics(scene.model)
-    with_q = [im for im in cams["images"] if im.get("q") is not None and im["file"] in sfm]
-    if len(with_q) < 3:
-        raise StageError("registration", "fewer than 3 images of A with joint angles and an SfM "
-                         "pose: no hand-eye calibration")
-    G = np.array([kin.frame_pose(np.asarray(im["q"], float), "flange") for im in with_q])
-    C = np.array([sfm[im["file"]] for im in with_q])
-    scale = reg.T_robot_model.scale
-    he = calibrate_hand_eye(G, C, scale)
-    rec = pycolmap.Reconstruction(str(Path(model_dir) / "a" / "sparse" / "0"))
-    feats = read_features(Path(model_dir) / "a" / "database.db")
-    names = {int(i): im.name for i, im in rec.images.items()}
-    L, LD = landmarks_from_tracks(rec.points3D, feats, names)
-    last = cams["images"][-1]
-    if last.get("q") is None:
-        raise StageError("registration", "the last image of A has no joint angles")
-    img = np.asarray(Image.open(Path(set_a) / "images" / last["file"]).convert("RGB"))
-    kp, desc = sift_features(img)
-    pnp = localize_image(kp, desc, L, LD, np.asarray(cams["K"], float), seed=seed)
-    T_pnp = register_by_pnp(kin.frame_pose(np.asarray(last["q"], float), "flange"),
-                            he.T_flange_camera, pnp.T_camera_model, scale)
-    pts = np.concatenate([lk.points for lk in model.links if len(lk.points)])
-    cmp = compare_registrations(reg.T_robot_model, T_pnp, pts)
-    return {"image": last["file"],
-            "note": "fresh image = the last image of A (also used by the SfM); scale from the "
-                    "camera-centre route (monocular PnP cannot give it)",
-            "hand_eye_backend": he.backend,
-            "hand_eye_consistency_mm": he.translation_residual_mm,
-            "hand_eye_consistency_deg": he.rotation_residual_deg,
-            "pnp_inliers": int(pnp.inliers.sum()), "pnp_matches": int(len(pnp.matches)),
-            "pnp_reprojection_rms_px": pnp.reprojection_rms,
-            "disagreement": cmp.to_dict(), "_T": T_pnp}
-
-
-def manipulation_stage(scene: Scene, registered, joint_index: int, set_a: Path,
-                       keys: list[str], ev: EvalConfig, cache_root: Path,
-                       scene_hash: str, swapped: bool = False,
-                       true_joint: str | None = None) -> tuple[dict, dict, bool]:
-    """Move the scene's joint ``true_joint`` (default :func:`sim.manipulate.default_joint`)
-    along the estimated joint ``joint_index`` (cached).
-
-    The arm grasps that joint's child link (sim.manipulate's default candidates); when the model
-    took that link as the parent (``swapped``), the motion of the grasped link is the model's
-    joint motion reversed: same axis line, opposite direction (the requested amount stays the
-    model's motion A -> B).
-    """
-    from sim.manipulate import JointEstimate, default_joint, joint_estimate_from_model, manipulate
-
-    true_joint = true_joint or default_joint(scene).name
-    cams = read_json(set_a / "cameras.json")
-    q_last = next((im["q"] for im in reversed(cams["images"]) if im.get("q") is not None), None)
-    est, _, _ = joint_estimate_from_model(registered, joint_index)
-    if swapped:
-        est = JointEstimate(est.type, -est.axis, est.point, "model (parent/child swapped)",
-                            est.name)
-    amount = float(registered.joints[joint_index].motion)
-    inputs = {"scene_hash": scene_hash, "keys": keys, "joint": joint_index,
-              "true_joint": true_joint, "seed": ev.seed,
+    est = joint_estimate_from_model(registered, model_joint)
+    amount = float(registered.joints[model_joint].motion)
+    inputs = {"scene_hash": scene_hash, "keys": keys, "joint": model_joint, "seed": ev.seed,
               "estimate": {"type": est.type, "axis": est.axis.tolist(),
                            "point": est.point.tolist(), "amount": amount},
-              "q_start": q_last, "code": _manipulate_sources()}
+              "model_points": cache.hash_bytes(*(np.ascontiguousarray(lk.points, float).tobytes()
+                                                 for lk in registered.links)),
+              "q_start": list(q_start), "code": _manipulate_sources()}
 
     def build(folder: Path) -> dict:
-        res = manipulate(scene, est, amount, q_start=q_last, seed=ev.seed, joint=true_joint)
-        cache.write_json_atomic(folder / "manipulation.json", res.to_dict())
+        try:
+            res = manipulate(scene, est, amount, registered=registered, model_joint=model_joint,
+                             q_start=q_start, seed=ev.seed)
+            out = res.to_dict()
+        except ManipulationError as err:
+            out = {"error": f"{type(err).__name__}: {err}", "requested": amount,
+                   "estimate": {"type": est.type, "axis": est.axis.tolist(),
+                                "point": est.point.tolist(), "name": est.name}}
+        cache.write_json_atomic(folder / "manipulation.json", out)
         return {}
 
     folder, meta, hit = cache.cached_stage(cache_root, "manipulation", inputs, build)
     return read_json(folder / "manipulation.json"), meta, hit
-
-

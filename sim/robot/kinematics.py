@@ -1,312 +1,28 @@
-"""The arm: its kinematics (pinocchio) on the stage's circular rail, in a MuJoCo scene's frame.
-
-Which arm a scene uses is the scene's choice: its stage names an :class:`ArmSpec` in
-``<custom><text name="artrecon:arm" data="panda"/>`` (no such text: the PUMA 560), and
-:func:`arm_spec` / :func:`load_arm_kinematics` pick it up. Two kinds of arm:
-
-- the PUMA 560, defined once by its standard Denavit-Hartenberg table (:data:`PUMA560_DH`,
-  sources in ``robots/puma560/README.md``); ``robots/puma560/generate_mjcf.py`` writes the
-  MuJoCo model from these constants and the pinocchio model is built from the same table;
-- arms from a URDF (:data:`PANDA`, the Franka Emika Panda of example-robot-data,
-  ``robots/panda/``): ``robots/panda/generate_mjcf.py`` writes the MuJoCo model from the URDF and
-  the pinocchio model is built from the same file (``pinocchio.buildModelFromUrdf``).
-
-Either way :func:`load_arm_kinematics` reads from the compiled MuJoCo scene only what the scene
-decides: where the rail is, where the arm is mounted on the rail carriage, and where the camera and
-the grasp site sit on the flange. The tests check that pinocchio and MuJoCo (and, for the PUMA,
-the plain DH product) agree.
-
-Frames (all ``T_a_b``, metres): for the PUMA ``frame0`` .. ``frame6`` are the standard DH frames
-(``frame0`` at the shoulder, ``frame6`` at the wrist centre, z along the approach direction) and
-``flange`` is ``frame6``; for a URDF arm ``frame0`` is the arm's base link and ``frame<i>`` the
-frame of its joint i (the URDF child link of joint i), ``flange`` the last joint's frame. For
-every arm ``camera`` is the wrist camera in the OpenCV convention, ``grasp`` the grasp site
-between the fingertips, ``rail`` the rail carriage.
-
-Joint vector ``q`` : (1 + n,) float, radians, order ``(rail, joint1, ..., joint<n>)`` (n = 6 for the
-PUMA, 7 for the Panda); MuJoCo takes it through ``data.qpos[qpos_indices(model, kin)]`` and the
-position actuators through ``data.ctrl[actuator_indices(model, kin)]``.
-"""
+"""The arm's kinematics in pinocchio, read from a compiled MuJoCo scene
+(:func:`load_arm_kinematics`), its inverse kinematics, and where its joints and actuators sit in
+MuJoCo's arrays."""
 
 from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 
 from artrecon.geometry import pose, quat_wxyz_to_matrix
 from sim.camera import T_GL_CV
+from sim.robot.spec import ROOT, ArmSpec, arm_spec, dh_transform
+
+try:  # np.linalg.solve's own gufunc (numpy 1.x and 2.x), without the wrapper's checks
+    from numpy.linalg import _umath_linalg
+
+    def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return _umath_linalg.solve1(a, b, signature="dd->d")
+except (ImportError, AttributeError):  # pragma: no cover - a numpy without it
+    _solve = np.linalg.solve
 
 log = logging.getLogger(__name__)
-
-#: The repository root: ArmSpec.urdf paths are relative to it.
-ROOT = Path(__file__).resolve().parents[1]
-
-
-# ----------------------------------------------------------------------------------------------
-# The PUMA 560 as published
-# ----------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class DHLink:
-    """One row of a standard DH table: ``T = Rz(theta) Tz(d) Tx(a) Rx(alpha)``."""
-
-    a: float
-    """link length (m)"""
-    alpha: float
-    """link twist (rad)"""
-    d: float
-    """link offset (m)"""
-
-
-#: Standard DH parameters of the PUMA 560 (Corke, "A simple and systematic approach to assigning
-#: Denavit-Hartenberg parameters", IEEE T-RO 2007; values of Corke & Armstrong-Helouvry 1994 as in
-#: the Robotics Toolbox's mdl_puma560).
-PUMA560_DH: tuple[DHLink, ...] = (
-    DHLink(a=0.0, alpha=np.pi / 2, d=0.0),
-    DHLink(a=0.4318, alpha=0.0, d=0.0),
-    DHLink(a=0.0203, alpha=-np.pi / 2, d=0.15005),
-    DHLink(a=0.0, alpha=np.pi / 2, d=0.4318),
-    DHLink(a=0.0, alpha=-np.pi / 2, d=0.0),
-    DHLink(a=0.0, alpha=0.0, d=0.0),
-)
-
-#: Joint limits in degrees (mdl_puma560 of Corke's Robotics Toolbox, after Wang & Chen 1991).
-PUMA560_QLIM_DEG: tuple[tuple[float, float], ...] = (
-    (-160.0, 160.0), (-45.0, 225.0), (-225.0, 45.0), (-110.0, 170.0), (-100.0, 100.0),
-    (-266.0, 266.0),
-)
-
-#: Height of DH frame 0 (the shoulder) above the arm's mounting plate (body ``base``). A modelling
-#: choice for the simple-shape column; the DH table starts at the shoulder.
-PUMA560_SHOULDER_HEIGHT = 0.54
-
-#: Pose of the wrist camera (OpenCV convention) in the flange frame (DH frame 6): 75 mm off the
-#: approach axis along -y6 and 70 mm forward, looking along z6; image "down" (+y) points at the
-#: gripper, which stays below the image's lower edge (checked in tests/test_robot.py).
-PUMA560_T_FLANGE_CAMERA = np.array([
-    [1.0, 0.0, 0.0, 0.0],
-    [0.0, 1.0, 0.0, -0.075],
-    [0.0, 0.0, 1.0, 0.070],
-    [0.0, 0.0, 0.0, 1.0],
-])
-
-#: Grasp site in the flange frame: between the fingertips, on the approach axis.
-PUMA560_GRASP_OFFSET = np.array([0.0, 0.0, 0.125])
-
-#: Wrist camera (Logitech QuickCam Pro 5000 class): 640 x 480, 60 degrees horizontal field of view,
-#: fx = fy = 320 / tan(30 deg) = 554.26 px, principal point at the image centre.
-CAMERA_WIDTH, CAMERA_HEIGHT = 640, 480
-CAMERA_FOCAL_PX = 320.0 / np.tan(np.deg2rad(30.0))
-
-
-@dataclass(frozen=True)
-class ArmSpec:
-    """Which arm a scene uses and how its MJCF names things."""
-
-    name: str
-    """model name, e.g. ``"puma560"``"""
-    prefix: str
-    """prefix of the ``<attach>`` in scenes/stage.xml, e.g. ``"puma_"``"""
-    camera: str
-    """MuJoCo camera in the arm MJCF (scene name: prefix + camera)"""
-    grasp_site: str
-    """site at the gripper, in the arm MJCF"""
-    rail_joint: str = "rail"
-    """hinge of the rail carriage in the stage (not prefixed)"""
-    joints: tuple[str, ...] = ("joint1", "joint2", "joint3", "joint4", "joint5", "joint6")
-    """arm joints in the arm MJCF, base to flange"""
-    base_body: str = "base"
-    """the arm's root body (mounting plate) in the arm MJCF"""
-    flange_body: str = "link6"
-    """the body whose frame is DH frame 6"""
-    dh: tuple[DHLink, ...] = PUMA560_DH
-    """standard DH table, one row per arm joint"""
-    qlim_deg: tuple[tuple[float, float], ...] = PUMA560_QLIM_DEG
-    """joint limits (degrees), one pair per arm joint"""
-    shoulder_height: float = PUMA560_SHOULDER_HEIGHT
-    """DH frame 0 above the base body's origin, along its z axis (m)"""
-    home: tuple[float, ...] = field(default=(0.115, 1.143, -3.755, 1.072, 0.272, -2.333))
-    """home configuration of the arm joints (rad), the MJCF's ``home`` keyframe: on the stage,
-    with the rail at 0, the wrist camera looks at the table centre from 0.45 m, 50 degrees up
-    (at 40 degrees, as for the Panda, the PUMA on the 0.80 m rail is 2 degrees from a limit)"""
-    urdf: str | None = None
-    """URDF of the arm, relative to the repository root; None: the kinematics come from ``dh``"""
-    urdf_joints: tuple[str, ...] = ()
-    """the URDF's names of ``joints`` (same order), for a URDF arm"""
-    wrist_flip: bool = True
-    """the arm has a spherical wrist (joints 4-6) whose flipped solution (q4 +- pi, -q5,
-    q6 +- pi) solve_view_ik tries before random restarts"""
-
-
-PUMA560 = ArmSpec(name="puma560", prefix="puma_", camera="wrist_cam", grasp_site="grasp")
-
-#: Pose of the Panda's wrist camera (OpenCV convention) in its hand frame (URDF ``panda_hand``,
-#: z along the fingers, y the direction the fingers open): 50 mm off the hand's centre along -x
-#: (just outside the hand's 32 mm half-thickness) and 40 mm forward, looking along z; image
-#: "down" (+y) points at the gripper, whose fingertips stay 35 deg off the optical axis, below the
-#: image's lower edge (23.4 deg).
-PANDA_T_HAND_CAMERA = np.array([
-    [0.0, 1.0, 0.0, -0.050],
-    [-1.0, 0.0, 0.0, 0.0],
-    [0.0, 0.0, 1.0, 0.040],
-    [0.0, 0.0, 0.0, 1.0],
-])
-#: Grasp site in the Panda's hand frame: the URDF's ``panda_hand_tcp``, between the fingertips.
-PANDA_GRASP_OFFSET = np.array([0.0, 0.0, 0.1034])
-#: The Panda's fingers are welded open at this travel each (the URDF's upper limit, m).
-PANDA_FINGER_OPENING = 0.04
-
-#: Franka Emika Panda on the rail, kinematics from example-robot-data's URDF (robots/panda).
-PANDA = ArmSpec(
-    name="panda", prefix="panda_", camera="wrist_cam", grasp_site="grasp",
-    joints=tuple(f"joint{i}" for i in range(1, 8)), base_body="link0", flange_body="link7",
-    dh=(), qlim_deg=(), shoulder_height=0.0,
-    home=(-2.239, 0.906, 2.239, -2.646, -1.447, 2.567, -1.366),
-    urdf="robots/panda/panda.urdf", urdf_joints=tuple(f"panda_joint{i}" for i in range(1, 8)),
-    wrist_flip=False)
-
-#: Arms a scene can choose, by name.
-ARMS: dict[str, ArmSpec] = {PUMA560.name: PUMA560, PANDA.name: PANDA}
-#: Name of the MJCF ``<custom><text>`` that chooses the arm (its data: a key of ARMS).
-ARM_TEXT = "artrecon:arm"
-
-
-def arm_spec(model) -> ArmSpec:
-    """The arm a compiled scene chooses: its ``<custom><text name="artrecon:arm" data=NAME/>``,
-    or the PUMA 560 if it has none.
-
-    Raises
-    ------
-    ValueError
-        The text names an arm that is not in :data:`ARMS`.
-    """
-    import mujoco
-
-    t = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXT, ARM_TEXT)
-    if t < 0:
-        return PUMA560
-    adr, size = int(model.text_adr[t]), int(model.text_size[t])
-    name = bytes(model.text_data[adr:adr + size]).split(b"\0")[0].decode().strip()
-    if name not in ARMS:
-        raise ValueError(f'<custom><text name="{ARM_TEXT}" data="{name}"/> names an unknown arm; '
-                         f"fix: use one of {sorted(ARMS)}")
-    return ARMS[name]
-
-
-# ----------------------------------------------------------------------------------------------
-# Plain DH formulas
-# ----------------------------------------------------------------------------------------------
-
-
-def dh_transform(link: DHLink, theta: float) -> np.ndarray:
-    """Standard DH transform ``T_{i-1}_{i} = Rz(theta) Tz(d) Tx(a) Rx(alpha)`` : (4, 4) float."""
-    ct, st = np.cos(theta), np.sin(theta)
-    ca, sa = np.cos(link.alpha), np.sin(link.alpha)
-    return np.array([
-        [ct, -st * ca, st * sa, link.a * ct],
-        [st, ct * ca, -ct * sa, link.a * st],
-        [0.0, sa, ca, link.d],
-        [0.0, 0.0, 0.0, 1.0],
-    ])
-
-
-def dh_forward(dh: tuple[DHLink, ...], q: np.ndarray) -> list[np.ndarray]:
-    """Poses of DH frames 1..n in frame 0 by the plain DH product.
-
-    Parameters
-    ----------
-    dh : n DH rows
-    q : (n,) float
-        Joint angles (rad).
-
-    Returns
-    -------
-    frames : list of n (4, 4) float
-        ``T_0_i`` for i = 1..n.
-    """
-    q = np.asarray(q, dtype=float)
-    if q.shape != (len(dh),):
-        raise ValueError(f"expected q of shape ({len(dh)},), got {q.shape}")
-    T = np.eye(4)
-    out = []
-    for link, theta in zip(dh, q, strict=True):
-        T = T @ dh_transform(link, theta)
-        out.append(T)
-    return out
-
-
-# ----------------------------------------------------------------------------------------------
-# Camera geometry helpers
-# ----------------------------------------------------------------------------------------------
-
-
-def look_at_pose(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """Camera pose (OpenCV convention) at ``eye`` looking at ``target``, image "up" towards ``up``.
-
-    Parameters
-    ----------
-    eye, target, up : (3,) float
-        Camera centre, the point on the optical axis, and the world direction that appears upwards
-        in the image (``-y`` of the camera lies in the plane of ``up`` and the optical axis).
-
-    Returns
-    -------
-    T_world_camera : (4, 4) float
-    """
-    eye, target, up = (np.asarray(v, dtype=float) for v in (eye, target, up))
-    for name, v in (("eye", eye), ("target", target), ("up", up)):
-        if v.shape != (3,):
-            raise ValueError(f"look_at_pose: expected {name} of shape (3,), got {v.shape}")
-    z = target - eye
-    if np.linalg.norm(z) < 1e-12:
-        raise ValueError("look_at_pose: eye and target coincide; give distinct points")
-    z /= np.linalg.norm(z)
-    y = -(up - np.dot(up, z) * z)
-    if np.linalg.norm(y) < 1e-9:
-        raise ValueError("look_at_pose: up is parallel to the viewing direction; pass another up")
-    y /= np.linalg.norm(y)
-    x = np.cross(y, z)
-    T = np.eye(4)
-    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, z, eye
-    return T
-
-
-def ring_camera_poses(target, distance: float, elevation: float, n: int = 36,
-                      azimuth0: float = 0.0) -> np.ndarray:
-    """Cameras on a horizontal ring around ``target``, all looking at it (OpenCV convention).
-
-    Parameters
-    ----------
-    target : (3,) float
-        The point every camera looks at (world frame).
-    distance : float
-        Camera centre to target (m).
-    elevation : float
-        Angle of the camera above the target's horizontal plane (rad).
-    n : int
-        Number of views, equally spaced in azimuth.
-    azimuth0 : float
-        Azimuth of the first view (rad), measured about world z from world x.
-
-    Returns
-    -------
-    T_world_cameras : (n, 4, 4) float
-    """
-    target = np.asarray(target, dtype=float)
-    if target.shape != (3,):
-        raise ValueError(f"ring_camera_poses: expected target of shape (3,), got {target.shape}")
-    out = np.empty((n, 4, 4))
-    for i, az in enumerate(azimuth0 + 2.0 * np.pi * np.arange(n) / n):
-        direction = np.array([np.cos(elevation) * np.cos(az), np.cos(elevation) * np.sin(az),
-                              np.sin(elevation)])
-        out[i] = look_at_pose(target + distance * direction, target)
-    return out
-
 
 # ----------------------------------------------------------------------------------------------
 # Pinocchio model of rail + arm in a compiled MuJoCo scene
@@ -340,14 +56,14 @@ class IKResult:
     """angle between the frame and the target orientation (rad); 0 for position-only solves"""
 
 
-def _check_pose(T, name: str) -> np.ndarray:
+def check_pose(T, name: str) -> np.ndarray:
     T = np.asarray(T, dtype=float)
     if T.shape != (4, 4):
         raise ValueError(f"expected {name} of shape (4, 4), got {T.shape}")
     return T
 
 
-def _mj_id(model, kind, name: str, what: str) -> int:
+def mj_id(model, kind, name: str, what: str) -> int:
     import mujoco
 
     idx = mujoco.mj_name2id(model, kind, name)
@@ -474,7 +190,7 @@ class ArmKinematics:
         IKResult
         """
         pin = self._pin
-        T_target = _check_pose(T_world_target, "T_world_target")
+        T_target = check_pose(T_world_target, "T_world_target")
         fid = self._frame_id(frame)
         free = np.ones(self.nq, dtype=bool)
         free[list(locked)] = False
@@ -534,7 +250,10 @@ class ArmKinematics:
                 break
             J = pin.getFrameJacobian(model, data, fid, frame)
             J = (J[:3] if position_only else J)[:, free]
-            dq_free = J.T @ np.linalg.solve(J @ J.T + D, err)
+            # numpy's gufunc behind np.linalg.solve, without its checks (a quarter of the
+            # iteration's time, ~10^6 iterations in a large object's view plan): same LAPACK
+            # call, same numbers
+            dq_free = J.T @ _solve(J @ J.T + D, err)
             norm = math.sqrt(float(dq_free @ dq_free))
             if norm > max_step:
                 dq_free *= max_step / norm
@@ -582,14 +301,14 @@ def load_arm_kinematics(model, spec: ArmSpec | None = None) -> ArmKinematics:
         spec = arm_spec(model)
     obj = mujoco.mjtObj
     p = spec.prefix
-    rail_j = _mj_id(model, obj.mjOBJ_JOINT, spec.rail_joint, "rail joint")
+    rail_j = mj_id(model, obj.mjOBJ_JOINT, spec.rail_joint, "rail joint")
     if model.jnt_type[rail_j] != mujoco.mjtJoint.mjJNT_HINGE:
         raise ValueError(f"rail joint {spec.rail_joint!r} must be a hinge")
-    arm_j = [_mj_id(model, obj.mjOBJ_JOINT, p + j, "arm joint") for j in spec.joints]
-    base_b = _mj_id(model, obj.mjOBJ_BODY, p + spec.base_body, "arm base body")
-    flange_b = _mj_id(model, obj.mjOBJ_BODY, p + spec.flange_body, "flange body")
-    cam = _mj_id(model, obj.mjOBJ_CAMERA, p + spec.camera, "camera")
-    site = _mj_id(model, obj.mjOBJ_SITE, p + spec.grasp_site, "grasp site")
+    arm_j = [mj_id(model, obj.mjOBJ_JOINT, p + j, "arm joint") for j in spec.joints]
+    base_b = mj_id(model, obj.mjOBJ_BODY, p + spec.base_body, "arm base body")
+    flange_b = mj_id(model, obj.mjOBJ_BODY, p + spec.flange_body, "flange body")
+    cam = mj_id(model, obj.mjOBJ_CAMERA, p + spec.camera, "camera")
+    site = mj_id(model, obj.mjOBJ_SITE, p + spec.grasp_site, "grasp site")
     rail_b = int(model.jnt_bodyid[rail_j])
     if model.cam_bodyid[cam] != flange_b or model.site_bodyid[site] != flange_b:
         raise ValueError(f"camera {p + spec.camera!r} and site {p + spec.grasp_site!r} must sit on "
@@ -752,7 +471,7 @@ def qpos_indices(model, kin: ArmKinematics) -> np.ndarray:
     """qpos addresses of ``kin.joint_names`` in a MuJoCo model : (n,) int."""
     import mujoco
 
-    ids = [_mj_id(model, mujoco.mjtObj.mjOBJ_JOINT, n, "joint") for n in kin.joint_names]
+    ids = [mj_id(model, mujoco.mjtObj.mjOBJ_JOINT, n, "joint") for n in kin.joint_names]
     return np.array([model.jnt_qposadr[j] for j in ids], dtype=int)
 
 
@@ -762,7 +481,7 @@ def actuator_indices(model, kin: ArmKinematics) -> np.ndarray:
 
     out = []
     for name in kin.joint_names:
-        j = _mj_id(model, mujoco.mjtObj.mjOBJ_JOINT, name, "joint")
+        j = mj_id(model, mujoco.mjtObj.mjOBJ_JOINT, name, "joint")
         hits = [a for a in range(model.nu)
                 if model.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT
                 and model.actuator_trnid[a, 0] == j]
@@ -771,105 +490,3 @@ def actuator_indices(model, kin: ArmKinematics) -> np.ndarray:
                              "rail and arm joint needs exactly one position actuator")
         out.append(hits[0])
     return np.array(out, dtype=int)
-
-
-# ----------------------------------------------------------------------------------------------
-# Views: IK for a camera pose, and collision checks in the MuJoCo scene
-# ----------------------------------------------------------------------------------------------
-
-#: Arm configuration (joint1..joint6) from which view IK starts when no guess is given: the home
-#: pose, where the camera looks at the table centre from 0.45 m and 50 degrees elevation.
-PUMA560_VIEW_SEED = PUMA560.home
-
-
-def solve_view_ik(kin: ArmKinematics, T_world_camera, q0=None, *, restarts: int = 16,
-                  seed: int = 0) -> IKResult:
-    """IK for a camera pose, the rail turned to the view's azimuth.
-
-    The rail is first held at the angle that puts the arm's shoulder at the camera's azimuth about
-    the rail axis (the stage is symmetric about that axis, so every view of a ring then needs the
-    same arm configuration); if the arm cannot reach the view from there, the rail is freed.
-
-    Parameters
-    ----------
-    kin : ArmKinematics
-    T_world_camera : (4, 4) float
-        Camera pose, OpenCV convention (e.g. from :func:`look_at_pose`).
-    q0 : (n,) float, optional
-        Initial guess (e.g. the previous view's solution); its rail entry is replaced.
-    restarts, seed
-        Random restarts per attempt and their seed.
-
-    Returns
-    -------
-    IKResult
-    """
-    T = _check_pose(T_world_camera, "T_world_camera")
-    rail_axis_point = kin.frame_pose(np.zeros(kin.nq), "rail")[:3, 3]
-    rel = T[:3, 3] - rail_axis_point
-    start = np.zeros(kin.nq)
-    start[1:] = kin.spec.home if q0 is None else np.asarray(q0, dtype=float)[1:]
-    start[0] = kin.rail_angle_for_azimuth(np.arctan2(rel[1], rel[0]))
-    attempts = [(start, 0)]
-    if kin.spec.wrist_flip:
-        # A spherical wrist (the PUMA's) reaches the same orientation with the wrist flipped
-        # (q4 +- pi, -q5, q6 +- pi): try both from the guess before random restarts, so that a
-        # guess whose wrist runs into the joint 4 limit does not send the solver far off.
-        flipped = start.copy()
-        flipped[4] += -np.pi if start[4] > 0 else np.pi
-        flipped[5] = -start[5]
-        flipped[6] += -np.pi if start[6] > 0 else np.pi
-        attempts.append((flipped, 0))
-    attempts.append((start, restarts))
-    result = None
-    for guess, n_restarts in attempts:
-        attempt = kin.solve_ik(T, "camera", guess, locked=(0,), restarts=n_restarts, seed=seed)
-        if result is None or attempt.success or (
-                attempt.position_error + attempt.rotation_error
-                < result.position_error + result.rotation_error):
-            result = attempt
-        if result.success:
-            break
-    if not result.success:
-        free = kin.solve_ik(T, "camera", result.q, restarts=restarts, seed=seed + 1)
-        if free.position_error + free.rotation_error < (result.position_error
-                                                        + result.rotation_error):
-            result = free
-    return result
-
-
-def arm_contacts(model, data, kin: ArmKinematics) -> list[tuple[str, str]]:
-    """Contacts in ``data`` that involve the rail carriage or the arm.
-
-    Call after setting ``data.qpos`` and ``mujoco.mj_forward``. An empty list means the arm touches
-    nothing (neither the table, the object, the floor nor itself).
-
-    Returns
-    -------
-    pairs : list of (geom name or id, geom name or id)
-    """
-    import mujoco
-
-    rail_b = int(model.jnt_bodyid[_mj_id(model, mujoco.mjtObj.mjOBJ_JOINT,
-                                         kin.spec.rail_joint, "rail joint")])
-    moving = {b for b in range(model.nbody) if _descends_from(model, b, rail_b)}
-
-    def name(g):
-        n = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g)
-        return n if n else f"geom {g} of body {model.body(model.geom_bodyid[g]).name!r}"
-
-    out = []
-    for c in data.contact[: data.ncon]:
-        g1, g2 = int(c.geom[0]), int(c.geom[1])
-        if model.geom_bodyid[g1] in moving or model.geom_bodyid[g2] in moving:
-            out.append((name(g1), name(g2)))
-    return out
-
-
-def _descends_from(model, body: int, root: int) -> bool:
-    b = body
-    while b != 0:
-        if b == root:
-            return True
-        b = int(model.body_parentid[b])
-    return root == 0

@@ -1,0 +1,179 @@
+"""Manipulation: the arm grasps a link of the object and moves it along an estimated joint.
+
+``python -m sim.manipulate SCENE [--model MODEL.json] [--angle DEG | --distance M] --out DIR``
+
+The robot decides from what it knows (:mod:`.planning`): its arm, the stage, and the registered
+model of the object. From the model it takes the joint to move, the link to grasp (the joint's
+child in the model's tree), grasp candidates on that link's reconstructed surface (also on sides
+its camera cannot see now), whether each is hidden from the wrist camera at the arm's current
+pose (rays against the model), the approach (from the model's normals), the clearance and the
+arm's contacts (the model as spheres in a planning world), and the direction and size of the
+motion (the model's joint motion A -> B). Ground truth enters only afterwards, in scoring.
+
+The plan is then executed in MuJoCo physics (:mod:`.execute`) with a gripper whose grip has a
+limit: it lets go when the force or torque needed to drag the object along the arm's path
+exceeds it, so a wrong axis fails instead of dragging the object through its joint.
+
+:func:`manipulate` ties the two together. Without a registered model it follows a joint given by
+the caller on the true object's geometry: a demonstration (the command without ``--model``, the
+tests that compare a true axis with a tilted one), never the harness's plan.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from sim.manipulate.estimate import (
+    WRONG_AXIS_TILT_DEG,
+    JointEstimate,
+    ManipulationError,
+    default_joint,
+    joint_estimate_from_model,
+    joint_estimate_from_scene,
+)
+from sim.manipulate.execute import GripConfig, ManipulationResult, achieved_along
+from sim.manipulate.execute import execute as execute_plan
+from sim.manipulate.planning import (
+    GraspCandidate,
+    PlanningConfig,
+    PlanningWorld,
+    model_grasp_candidates,
+    plan_candidate,
+    plan_grasp,
+    rank,
+    scene_grasp_candidates,
+)
+from sim.manipulate.world import World, build_world, fresh_data
+
+log = logging.getLogger(__name__)
+
+
+def moving_links(registered, joint: int) -> set[int]:
+    """The model links that move with joint ``joint``'s child: the child and its descendants in
+    the model's tree."""
+    out, todo = set(), [registered.joints[joint].child]
+    while todo:
+        k = todo.pop()
+        out.add(k)
+        todo += registered.children_of(k)
+    return out
+
+
+def _descends(model, body: int, root: int) -> bool:
+    while body > 0 and body != root:
+        body = int(model.body_parentid[body])
+    return body == root
+
+
+def manipulate(scene, estimate: JointEstimate, amount: float, *, registered=None,
+               model_joint: int | None = None, candidates=None, grasp_point=None,
+               grasp_normal=None, q_start=None, prefer_hidden: bool = True,
+               record_every: float | None = None, seed: int = 0, world: World | None = None,
+               joint: str | None = None, planning: PlanningWorld | None = None,
+               grip: GripConfig | None = None,
+               planning_config: PlanningConfig | None = None) -> ManipulationResult:
+    """Plan a grasp and a motion by ``amount`` along ``estimate``, and run it in physics.
+
+    Parameters
+    ----------
+    scene : sim.scene.Scene
+        The scene (the object in configuration A). With ``registered`` only its file and compiled
+        model are used (the simulator), never its ground truth.
+    estimate : JointEstimate
+        The joint to follow, world frame (from the model: :func:`joint_estimate_from_model`).
+    amount : float
+        Requested displacement: rad (revolute) or m (prismatic), positive about/along the axis.
+    registered : artrecon.model.ArticulatedModel, optional
+        The registered model (robot frame, metres): the plan is made from it alone.
+    model_joint : int, optional
+        Index of the model's joint ``estimate`` comes from: its child link is grasped.
+    candidates : list of GraspCandidate, optional
+        Grasp points to choose from instead of the default ones.
+    grasp_point, grasp_normal : (3,) float, optional
+        Grasp exactly here (no ranking); the normal defaults to +z.
+    q_start : (n,) float, optional
+        The arm's current configuration (rail first); default its home keyframe. Visibility of
+        grasp points is judged from the wrist camera at this pose.
+    prefer_hidden : bool
+        Prefer points the camera cannot see from ``q_start`` (the method's case).
+    record_every : float, optional
+        Keep a qpos snapshot every this many simulated seconds (for an image strip).
+    seed : int
+        Seed of the IK restarts.
+    world : World, optional
+        A :func:`build_world` result to reuse.
+    joint : str, optional
+        Without ``registered`` (demonstrations): the scene joint whose child link the default
+        candidates lie on; default :func:`default_joint`.
+    planning : PlanningWorld, optional
+        A planning world to reuse.
+    grip, planning_config : optional
+        The gripper and the plan's settings.
+
+    Returns
+    -------
+    ManipulationResult
+
+    Raises
+    ------
+    ManipulationError
+        No candidate can be grasped and moved, or the grasp could not be made.
+    """
+    grip = grip or GripConfig()
+    planning_config = planning_config or PlanningConfig()
+    if world is None:
+        world = build_world(scene)
+    data = fresh_data(world)
+    q_start = world.kin.clip(np.asarray(data.qpos[world.qidx] if q_start is None else q_start,
+                                        dtype=float))
+    if planning is None:
+        planning = (PlanningWorld.from_model(world, registered, planning_config)
+                    if registered is not None else
+                    PlanningWorld.from_scene(world, planning_config))
+    if registered is not None:
+        moving = moving_links(registered, model_joint) if model_joint is not None else set()
+    else:  # the true world: the bodies that ride on the followed joint's child
+        target = default_joint(scene) if joint is None else scene.joint(joint)
+        root = scene.link(target.child).body_id
+        moving = {b for b in world.object_bodies if _descends(world.model, b, root)}
+    if grasp_point is not None:
+        n = np.array([0.0, 0.0, 1.0]) if grasp_normal is None else np.asarray(grasp_normal, float)
+        (cand,) = planning.classify_visibility(
+            q_start, [GraspCandidate(np.asarray(grasp_point, float), n / np.linalg.norm(n))])
+        plan, why = plan_candidate(planning, cand, estimate, amount, q_start, seed, moving)
+        if plan is None:
+            raise ManipulationError(f"the given grasp point cannot be grasped and moved: {why}")
+        summary = {"total": 1, "hidden": int(cand.hidden), "usable": 1,
+                   "rejected_before_choice": [], "planned_in": planning.source}
+    else:
+        if candidates is None:
+            if registered is not None:
+                if model_joint is None:
+                    raise ValueError("give model_joint: the model's joint whose child to grasp")
+                candidates = model_grasp_candidates(registered, model_joint, planning_config)
+            else:
+                candidates = scene_grasp_candidates(world, data,
+                                                    scene.link(target.child).body_ids)
+        plan, summary = plan_grasp(planning, candidates, estimate, amount, q_start,
+                                   prefer_hidden=prefer_hidden, seed=seed, moving_links=moving)
+    c = plan.candidate
+    if c.hidden:
+        log.info("grasp point %s is HIDDEN from the wrist camera at the current pose (%s)",
+                 np.round(c.point, 3).tolist(), c.visibility)
+    result = execute_plan(world, plan, estimate, amount, q_start, candidates_summary=summary,
+                     planned_in=planning.source, grip=grip, record_every=record_every)
+    if c.hidden:
+        result.log.insert(0, f"grasp point {np.round(c.point, 3).tolist()} is HIDDEN from the "
+                             f"wrist camera at the current pose ({c.visibility})")
+    return result
+
+
+__all__ = [
+    "GraspCandidate", "GripConfig", "JointEstimate", "ManipulationError", "ManipulationResult",
+    "PlanningConfig", "PlanningWorld", "WRONG_AXIS_TILT_DEG", "World", "achieved_along",
+    "build_world", "default_joint", "execute_plan", "fresh_data", "joint_estimate_from_model",
+    "joint_estimate_from_scene", "manipulate", "model_grasp_candidates", "moving_links",
+    "plan_candidate", "plan_grasp", "rank", "scene_grasp_candidates",
+]

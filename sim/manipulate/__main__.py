@@ -1,0 +1,5 @@
+import sys
+
+from sim.manipulate.cli import main
+
+sys.exit(main())

@@ -1,0 +1,105 @@
+"""The texture check (issue 24): before the long capture, every part of a scene's object must
+show enough texture for SIFT features on a few rendered views. The bundled scenes pass; a scene
+with a plain part is refused in seconds with a message naming the part and the fix, and
+``sim.evaluate`` stops there instead of capturing."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sim.scene import BUNDLED_SCENES_DIR, list_scenes, load_scene, stage_file
+from sim.texture_check import TextureCheckConfig, TextureError, check_texture, textured_mask
+
+#: The scenes nearest the threshold (Barrett's fingers and palm: 52 - 62 %) and the thinnest
+#: parts (pliers) are checked in the quick run; every bundled scene in the slow one.
+QUICK = ("barrett_hand", "pliers")
+
+
+def _scene_with_plain_parts(folder: Path, name: str, plain: tuple[str, ...]) -> Path:
+    """A copy of a bundled scene in ``folder`` whose materials ``plain`` lost their texture."""
+    src = BUNDLED_SCENES_DIR / f"{name}.xml"
+    text = src.read_text()
+    (folder / "assets").mkdir(parents=True, exist_ok=True)
+    for f in re.findall(r'file="(assets/[^"]+)"', text):
+        shutil.copy(BUNDLED_SCENES_DIR / f, folder / f)
+    text = text.replace('<include file="stage.xml"/>', f'<include file="{stage_file()}"/>')
+    for mat in plain:
+        text, n = re.subn(rf'(<material name="{mat}") texture="{mat}"', r'\1 rgba="0.6 0.6 0.62 1"',
+                          text)
+        assert n == 1, mat
+    path = folder / f"{name}.xml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("name", QUICK)
+def test_bundled_scenes_pass(name):
+    report = check_texture(load_scene(name))
+    assert not report.failing
+    assert report.views == 2 * TextureCheckConfig().azimuths
+    for part in report.parts:
+        assert part.pixels >= TextureCheckConfig().min_pixels, part
+        assert part.textured_share >= TextureCheckConfig().min_textured_share, part
+        assert part.untextured_geoms == ()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [n for n in list_scenes(BUNDLED_SCENES_DIR) if n not in QUICK])
+def test_every_bundled_scene_passes(name):
+    assert not check_texture(load_scene(name)).failing
+
+
+def test_a_plain_part_is_refused_by_name_in_seconds(tmp_path):
+    path = _scene_with_plain_parts(tmp_path, "pliers", ("pliers_moving",))
+    t = time.perf_counter()
+    with pytest.raises(TextureError) as info:
+        check_texture(load_scene(path))
+    print(f"texture check refused the scene in {time.perf_counter() - t:.1f} s")
+    message = str(info.value)
+    assert str(path) in message
+    assert "part 'pliers_moving'" in message and "part 'object'" not in message
+    assert "pliers_moving_visual" in message  # the geom without a texture
+    assert "fix:" in message and "python -m sim.author import" in message
+    assert "without rendering" in message  # no texture at all: refused before any render
+    report = check_texture(load_scene(path), raise_on_failure=False)
+    share = {p.link: p.textured_share for p in report.parts}
+    assert share["pliers_moving"] < 0.25 < 0.6 < share["object"]
+
+
+def test_an_untextured_scene_is_refused_naming_every_part(tmp_path):
+    path = _scene_with_plain_parts(tmp_path, "cabinet", ("hinged_cabinet", "hinged_cabinet_door",
+                                                          "hinged_cabinet_drawer"))
+    with pytest.raises(TextureError) as info:
+        check_texture(load_scene(path))
+    for part in ("object", "cabinet_door", "cabinet_drawer"):
+        assert f"part '{part}'" in str(info.value)
+
+
+def test_sim_evaluate_stops_at_the_check_before_capturing(tmp_path):
+    from sim import evaluate
+
+    path = _scene_with_plain_parts(tmp_path / "scene", "pliers", ("pliers_moving",))
+    result = evaluate.evaluate_scene(str(path), evaluate.EvalConfig(progress=False),
+                                     tmp_path / "eval")
+    assert result["error_stage"] == "texture_check"
+    assert "pliers_moving" in result["error"] and not result["passed"]
+    cache = tmp_path / "eval" / "cache"
+    assert not cache.exists() or not any(cache.iterdir())  # nothing was captured
+
+
+def test_textured_mask_sees_texture_not_shading_or_edges():
+    rng = np.random.default_rng(0)
+    noise = (rng.random((120, 160, 3)) * 255).astype(np.uint8)
+    ramp = np.tile(np.linspace(40, 220, 160, dtype=np.float32), (120, 1))
+    ramp = np.repeat(ramp[..., None], 3, axis=2).astype(np.uint8)
+    edge = np.full((120, 160, 3), 60, np.uint8)
+    edge[:, 80:] = 200
+    assert textured_mask(noise).mean() > 0.9
+    assert textured_mask(ramp).mean() == 0.0
+    assert textured_mask(edge).mean() < 0.02  # a straight edge is no feature
