@@ -44,4 +44,7 @@ def stop(pool: ProcessPoolExecutor) -> None:
     for process in list((getattr(pool, "_processes", None) or {}).values()):
         if process.is_alive():
             process.kill()
-    pool.shutdown(wait=False, cancel_futures=True)
+    # waits only for the pool's manager thread, which ends at once with its workers dead: left
+    # running, it closed its wake-up pipe while the interpreter's exit hook wrote to it, and
+    # Python 3.11 printed that hook's "Bad file descriptor" traceback after our one line
+    pool.shutdown(wait=True, cancel_futures=True)
