@@ -19,10 +19,18 @@ from test_export import synthetic_model
 from artrecon import io
 
 
+def _default_sigint() -> None:
+    """In the child: Ctrl-C's default disposition. A suite started in the background of a
+    non-interactive shell inherits SIGINT ignored, and Python keeps an ignored SIGINT ignored:
+    the command would never see the Ctrl-C this file sends it."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start(argv: list[str]) -> subprocess.Popen:
     """A command in its own process group (so a signal reaches it and its workers together)."""
     return subprocess.Popen([sys.executable, "-m", *argv], cwd=REPO, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, start_new_session=True)
+                            stderr=subprocess.PIPE, start_new_session=True,
+                            preexec_fn=_default_sigint)
 
 
 def _wait_for(found, proc: subprocess.Popen, timeout: float = 300.0, poll: float = 0.05):
