@@ -17,11 +17,12 @@ from pathlib import Path
 
 import pytest
 from author_objects import write_mjcf_cabinet, write_partnet_chest
+from test_gates import assert_gate, gate_params
 
 import sim  # noqa: F401
 from sim import evaluate
 from sim.author import ImportConfig, import_object
-from sim.evaluate import gates, report
+from sim.evaluate import report
 
 pytestmark = pytest.mark.slow
 
@@ -72,19 +73,6 @@ def _result(name: str, out_dir: Path) -> dict:
     return _RESULTS[name]
 
 
-def _param(name: str, gate: str):
-    if (name, gate) in KNOWN_MISSES:
-        return pytest.param(name, gate, marks=pytest.mark.xfail(
-            strict=True, reason=KNOWN_MISSES[(name, gate)]))
-    return pytest.param(name, gate)
-
-
-@pytest.mark.parametrize(("name", "gate"),
-                         [_param(n, g) for n in OBJECTS for g in gates.GATE_NAMES])
+@pytest.mark.parametrize(("name", "gate"), gate_params(OBJECTS, KNOWN_MISSES))
 def test_imported_object_meets_the_gate(name, gate, out_dir):
-    r = _result(name, out_dir)
-    checks = [c for c in gates.checks(r) if gates.family(c.gate) == gate]
-    failed = [c.describe() for c in checks if not c.passed]
-    assert not failed, f"{name}: " + "; ".join(failed)
-    if gate == "error":
-        assert r["error"] is None
+    assert_gate(name, _result(name, out_dir), gate)
