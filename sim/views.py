@@ -451,7 +451,7 @@ _BODY_MASKS: dict = {}
 def _body_masks(model: mujoco.MjModel, links: set[int], robot_body_ids: set[int]
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Boolean masks over the bodies of ``model``: the arm links, the robot's bodies."""
-    key = (id(model), model.nbody, frozenset(links), frozenset(robot_body_ids))
+    key = (model.nbody, frozenset(links), frozenset(robot_body_ids))  # all the masks hold
     masks = _BODY_MASKS.get(key)
     if masks is None:
         if len(_BODY_MASKS) > 64:
