@@ -125,6 +125,62 @@ def source_hash(modules: Iterable) -> str:
     return hash_files(files, root=Path(os.path.commonpath([str(f) for f in files])))
 
 
+def _imported_modules(path: Path, package: str) -> set[str]:
+    """Names of the ``package`` modules a source file imports (at any depth of the file:
+    imports inside functions count)."""
+    import ast
+
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            names |= {a.name for a in node.names if a.name.split(".")[0] == package}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module and \
+                node.module.split(".")[0] == package:
+            names.add(node.module)
+            names |= {f"{node.module}.{a.name}" for a in node.names}  # submodules by name
+    return names
+
+
+def module_closure(module, package: str | None = None) -> list[Path]:
+    """Source files of ``module`` and of every module of its package it imports, directly or
+    through others (read from the sources: an import inside a function counts too), sorted.
+
+    A stage that runs only part of a package depends on that part alone: a cache keyed by
+    :func:`source_hash` of the whole package would be rebuilt for an edit it never runs.
+    Importing a package's ``__init__`` counts as importing that file only.
+    """
+    import importlib.util
+
+    package = package or module.__name__.split(".")[0]
+    seen: dict[str, Path] = {}
+    todo = [module.__name__]
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        try:
+            spec = importlib.util.find_spec(name)
+        except ModuleNotFoundError:  # a.b.c where a.b is a module: c is a name in it
+            spec = None
+        if spec is None or spec.origin is None or not spec.origin.endswith(".py"):
+            continue  # a name imported from a module (a function, a class), not a module
+        seen[name] = Path(spec.origin)
+        todo += sorted(_imported_modules(seen[name], package) - set(seen))
+        parent = name.rpartition(".")[0]
+        while parent and parent not in seen:  # importing a.b runs a/__init__.py first: its
+            # text counts; what it re-exports for users is not code the module runs
+            seen[parent] = Path(importlib.util.find_spec(parent).origin)
+            parent = parent.rpartition(".")[0]
+    return sorted(set(seen.values()))
+
+
+def closure_hash(module, package: str | None = None) -> str:
+    """:func:`hash_files` of :func:`module_closure`: changes when any code ``module`` can run
+    changes, and only then."""
+    files = module_closure(module, package)
+    return hash_files(files, root=Path(os.path.commonpath([str(f) for f in files])))
+
+
 def stage_key(stage: str, inputs: dict) -> str:
     """Cache key ``<stage>-<hash>`` of a stage's inputs (a JSON-serialisable dict)."""
     if not re.fullmatch(r"[A-Za-z0-9_.]+", stage):

@@ -298,6 +298,37 @@ def test_scene_hash_follows_included_and_referenced_files(tmp_path):
     assert cache.scene_hash(tmp_path / "top.xml") != h1
 
 
+def test_module_closure_follows_imports_inside_functions_and_nothing_else(tmp_path,
+                                                                          monkeypatch):
+    pkg = tmp_path / "closurepkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("from closurepkg.top import run\n")
+    (pkg / "top.py").write_text("def run():\n    from closurepkg import helper\n"
+                                "    return helper.x\n")
+    (pkg / "helper.py").write_text("import closurepkg.leaf\nx = 1\n")
+    (pkg / "leaf.py").write_text("y = 2\n")
+    (pkg / "later.py").write_text("from closurepkg.top import run\n")  # imports top, not used
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import importlib
+
+    top = importlib.import_module("closurepkg.top")
+    files = {p.name for p in cache.module_closure(top)}
+    assert files == {"__init__.py", "top.py", "helper.py", "leaf.py"}
+    h1 = cache.closure_hash(top)
+    (pkg / "later.py").write_text("# edited\n")
+    assert cache.closure_hash(top) == h1  # a module it never runs
+    (pkg / "leaf.py").write_text("y = 3\n")
+    assert cache.closure_hash(top) != h1
+
+
+def test_the_configuration_stage_is_keyed_on_its_own_code_only():
+    import artrecon.configuration
+
+    names = {p.name for p in cache.module_closure(artrecon.configuration)}
+    assert {"configuration.py", "sfm.py", "dense.py", "io.py"} <= names
+    assert not names & {"segment.py", "joints.py", "assign.py", "features.py", "reconstruct.py"}
+
+
 def test_bundled_scene_files_include_stage_arm_and_assets():
     files = {p.name for p in cache.scene_files(load_scene("truck").path)}
     assert {"truck.xml", "stage.xml", "truck_bed.obj", "truck_bed.png", "puma560.xml"} <= files

@@ -47,6 +47,24 @@ def _reconstruct_sources() -> str:
     return cache.source_hash([artrecon])
 
 
+def _configuration_sources() -> str:
+    """The code of artrecon's per-configuration stage alone (SfM, dense points, the object
+    region: :mod:`artrecon.configuration` and what it imports, and reconstruct.py's functions
+    that prepare its inputs), so that an edit of the later stages (matching, segmentation,
+    joints, assignment) reuses the configurations instead of redoing SfM for it."""
+    import importlib
+    import inspect
+
+    from artrecon import configuration
+
+    reconstruct = importlib.import_module("artrecon.reconstruct")  # the module, not the function
+    parts = [cache.closure_hash(configuration)]
+    parts += [inspect.getsource(f) for f in (reconstruct.prepare_configuration,
+                                              reconstruct._resolve_inputs,
+                                              reconstruct._configuration)]
+    return cache.hash_bytes(*(p.encode() for p in parts))
+
+
 def _manipulate_sources() -> str:
     from sim import manipulate, robot, scene, views
     from sim.manipulate import estimate, execute, planning, world
@@ -91,7 +109,7 @@ def _configuration_inputs(capture_key: str, configuration: str, ev: EvalConfig,
     return {"capture": capture_key, "config": configuration, "poses": ev.poses,
             "seed": ev.seed, "settings": _jsonable({k: asdict(getattr(config, k))
                                                     for k in ("sfm", "dense", "region")}),
-            "version": artrecon.__version__, "code": _reconstruct_sources()}
+            "version": artrecon.__version__, "code": _configuration_sources()}
 
 
 def configuration_stage(set_dir: Path, capture_key: str, configuration: str, ev: EvalConfig,
