@@ -4,10 +4,73 @@ The rendered hinge fixture (:mod:`render_fixture`) and its two reconstructions a
 defined here once, they are rendered and reconstructed once per session for every module that
 uses them (defined in each module, pytest treated them as distinct fixtures and rebuilt them per
 module: about 7 minutes of CI).
+
+The suite runs on two pytest-xdist workers (``-n 2 --dist loadscope`` in pyproject.toml), a
+module at a time per worker, with one exception (:func:`pytest_xdist_make_scheduler`): the
+end-to-end gates of :mod:`test_gates` and :mod:`test_author_gates` are split into one unit per
+scene, so that the nine scene evaluations spread over both workers instead of one worker running
+all of them while the other runs out of work (CI at 369e9c3: 60 min, most of it that one module).
 """
+
+import re
 
 import pytest
 import render_fixture
+
+#: Modules whose tests are parametrised by scene first (``test_x[scene-...]``, ``test_x[scene]``)
+#: and evaluate each scene once per process: each scene is its own unit of work.
+PER_SCENE_MODULES = ("tests/test_gates.py", "tests/test_author_gates.py")
+
+#: Units handed out first, in this order: the longest (measured serially at 30faea6, seconds:
+#: the scene evaluations 200-780 each, test_photo_route 590, test_configuration 130,
+#: test_faults 120, test_sweep 105, test_dense 77, test_manipulate_model 67), so that the short
+#: modules fill the gaps at the end instead of a long one starting last. A scene name stands for
+#: its per-scene unit, a file name for its module. The rest follow by test count.
+LONGEST_FIRST = ("cabinet_door_only", "truck", "test_photo_route.py", "scissors", "chest",
+                 "cabinet", "drawer", "scraper_truck", "mm_cabinet", "pliers", "pliers_panda",
+                 "barrett_hand", "test_configuration.py", "test_faults.py", "test_sweep.py",
+                 "test_dense.py", "test_manipulate_model.py", "test_bad_input.py",
+                 "test_confidence.py", "test_capture.py", "test_reachability.py")
+
+
+def scene_scope(nodeid: str) -> str:
+    """The xdist work unit of a test: its module, or module::scene for the per-scene modules."""
+    module, _, rest = nodeid.partition("::")
+    m = re.search(r"\[([A-Za-z0-9_]+)[-\]]", rest)
+    if module in PER_SCENE_MODULES and m:
+        return f"{module}::{m.group(1)}"
+    return nodeid.rsplit("::", 1)[0] if "::" in rest else module
+
+
+def _unit_rank(scope: str) -> int:
+    name = scope.rpartition("::")[2] if "::" in scope else scope.rpartition("/")[2]
+    return LONGEST_FIRST.index(name) if name in LONGEST_FIRST else len(LONGEST_FIRST)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Items grouped by work unit (:func:`scene_scope`), the long scene evaluations first, then
+    the other units by test count, each unit's tests in their own order. Every worker collects
+    the same order, and the scheduler hands the units out in it."""
+    units: dict[str, list] = {}
+    for item in items:
+        units.setdefault(scene_scope(item.nodeid), []).append(item)
+    order = sorted(units, key=lambda u: (_unit_rank(u), -len(units[u])))
+    items[:] = [item for u in order for item in units[u]]
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """Load-scope scheduling over the units of :func:`scene_scope`, in collection order."""
+    if config.getoption("dist") != "loadscope":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class SceneScopeScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return scene_scope(nodeid)
+
+    config.option.loadscopereorder = False  # keep the order of pytest_collection_modifyitems
+    return SceneScopeScheduling(config, log)
 
 
 @pytest.fixture(scope="session")

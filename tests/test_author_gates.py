@@ -17,12 +17,11 @@ from pathlib import Path
 
 import pytest
 from author_objects import write_mjcf_cabinet, write_partnet_chest
-from test_gates import assert_gate, gate_params
+from test_gates import assert_gate, gate_params, write_report
 
 import sim  # noqa: F401
 from sim import evaluate
 from sim.author import ImportConfig, import_object
-from sim.evaluate import report
 
 pytestmark = pytest.mark.slow
 
@@ -54,11 +53,7 @@ def out_dir(tmp_path_factory) -> Path:
 def _write_report(out_dir):
     yield
     if _RESULTS:
-        ev = evaluate.EvalConfig(progress=False)
-        meta = evaluate.run_meta(ev, "pytest tests/test_author_gates.py")
-        report.write_results({"scenes": {n: report.jsonable_scene(r)
-                                         for n, r in _RESULTS.items()}, "meta": meta},
-                             out_dir / "eval")
+        write_report(_RESULTS, out_dir / "eval", "pytest tests/test_author_gates.py")
 
 
 def _result(name: str, out_dir: Path) -> dict:

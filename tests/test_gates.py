@@ -75,16 +75,31 @@ def out_dir(tmp_path_factory) -> Path:
     return Path(keep) / "gates" if keep else tmp_path_factory.mktemp("gates")
 
 
+def write_report(results: dict[str, dict], out_dir: Path, command: str) -> None:
+    """results.json / results.md of the evaluations in ``results``, as the main job writes
+    them, merged with the scenes the folder already reports: the scenes of one module run in
+    both xdist workers (tests/conftest.py), each writing the ones it ran (under a lock)."""
+    import fcntl
+    import json
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with open(out_dir / ".results.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        scenes = {}
+        if (out_dir / "results.json").is_file():
+            scenes = json.loads((out_dir / "results.json").read_text()).get("scenes", {})
+        scenes.update({n: report.jsonable_scene(r) for n, r in results.items()})
+        meta = evaluate.run_meta(evaluate.EvalConfig(progress=False), command)
+        meta["scene_hashes"] = {n: r.get("scene_hash") for n, r in scenes.items()}
+        report.write_results({"scenes": dict(sorted(scenes.items())), "meta": meta}, out_dir)
+
+
 @pytest.fixture(scope="module", autouse=True)
 def _write_report(out_dir):
     """After the module: results.json / results.md of what ran, as the main job writes them."""
     yield
     if _RESULTS:
-        ev = evaluate.EvalConfig(progress=False)
-        meta = evaluate.run_meta(ev, "pytest tests/test_gates.py")
-        meta["scene_hashes"] = {n: r.get("scene_hash") for n, r in _RESULTS.items()}
-        report.write_results({"scenes": {n: report.jsonable_scene(r)
-                                         for n, r in _RESULTS.items()}, "meta": meta}, out_dir)
+        write_report(_RESULTS, out_dir, "pytest tests/test_gates.py")
 
 
 def _result(name: str, out_dir: Path) -> dict:
