@@ -32,11 +32,9 @@ Output folder (written whole or not at all: built in a temporary sibling folder,
 from __future__ import annotations
 
 import logging
-import multiprocessing
 import shutil
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -703,7 +701,7 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     confs: dict[str, Configuration] = {}
     if jobs > 1:
         # B in a second (spawned) process while this one does A: the two are independent
-        with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        with workers.pool(1) as pool:
             # the worker ignores Ctrl-C; this process stops it (one line, no worker traceback)
             future = workers.submit(pool, _configuration_in_process, *args["b"], False)
             try:

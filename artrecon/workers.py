@@ -7,18 +7,50 @@ still starting (importing, unpickling its task: seconds on a busy machine) print
 ignored (:func:`submit`: the disposition is inherited, and Python keeps an ignored SIGINT
 ignored), the parent alone turns Ctrl-C into one line and exit status 130, and it stops its
 workers at once (:func:`stop`) instead of waiting for their task to end.
+
+A parent that is killed outright (SIGKILL, SIGTERM: a job scheduler, a timeout, ``kill``) runs
+no code at all: its workers are made to die with it (:func:`pool`, Linux's parent-death signal),
+instead of running on for minutes as orphans and competing for the cores.
 """
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import logging
+import multiprocessing
+import os
 import signal
 import threading
 from concurrent.futures import Future, ProcessPoolExecutor
 
 log = logging.getLogger(__name__)
 
-__all__ = ["submit", "stop"]
+__all__ = ["die_with_parent", "pool", "submit", "stop"]
+
+#: prctl(2) option: the signal the calling process gets when its parent dies.
+_PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent(parent: int) -> None:
+    """Worker initializer (or first call of a worker): SIGKILL this process when its parent dies (Linux; elsewhere a
+    no-op), and exit now if the parent is already gone (it died while this one started)."""
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+    except (OSError, AttributeError):  # not Linux: orphans stay possible
+        return
+    if os.getppid() != parent:
+        os._exit(1)
+
+
+def pool(max_workers: int = 1) -> ProcessPoolExecutor:
+    """A process pool of spawned workers that die with this process (see the module doc).
+
+    Create it from the thread that lives as long as the pool: Linux sends the parent-death
+    signal when the thread that started the worker ends."""
+    return ProcessPoolExecutor(max_workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=die_with_parent, initargs=(os.getpid(),))
 
 
 def submit(pool: ProcessPoolExecutor, fn, *args, **kwargs) -> Future:

@@ -164,3 +164,46 @@ def test_interrupted_evaluation_is_one_line(tmp_path):
     # the cache holds no folder under a real name without its stage.json
     for p in (out / "cache").iterdir():
         assert p.name.startswith(".") or (p / "stage.json").is_file(), p
+
+
+_ORPHAN_SCRIPT = """
+import os, sys, time
+from artrecon import workers
+
+def task(path):
+    open(path, "w").write(str(os.getpid()))
+    time.sleep(120)
+
+if __name__ == "__main__":
+    pool = workers.pool(1)
+    pool.submit(task, sys.argv[1])
+    while not os.path.exists(sys.argv[1]):
+        time.sleep(0.05)
+    os.kill(os.getpid(), 9)  # killed outright: no code of the parent runs
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # a zombie is dead (its parent, init here, reaps it)
+    stat = Path(f"/proc/{pid}/stat")
+    return not (stat.exists() and stat.read_text().split()[2] == "Z")
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="the parent-death signal is Linux's")
+def test_a_killed_parents_worker_dies_with_it(tmp_path):
+    """A parent killed with SIGKILL (a timeout, a scheduler) takes its pool's worker with it,
+    instead of leaving it to run its task for minutes as an orphan."""
+    script = tmp_path / "orphan.py"
+    script.write_text(_ORPHAN_SCRIPT)
+    pid_file = tmp_path / "worker.pid"
+    proc = subprocess.run([sys.executable, str(script), str(pid_file)], cwd=REPO, timeout=120)
+    assert proc.returncode == -signal.SIGKILL
+    worker = int(pid_file.read_text())
+    t0 = time.monotonic()
+    while _alive(worker) and time.monotonic() - t0 < 10.0:
+        time.sleep(0.05)
+    assert not _alive(worker), f"worker {worker} outlived its killed parent"

@@ -177,15 +177,13 @@ def configuration_chains(scene: Scene, ev: EvalConfig, cache_root: Path, scene_h
     out: dict[str, dict | BaseException] = {}
     pool = future = None
     if ev.parallel_capture:
-        import multiprocessing
         import os
-        from concurrent.futures import ProcessPoolExecutor
         from dataclasses import replace
 
         # one core each: the CPU rasteriser's threads (read when a process first renders) and,
         # in artrecon's per-configuration stage, BLAS and OpenCV (artrecon.configuration)
         os.environ.setdefault("LP_NUM_THREADS", "1")
-        pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+        pool = workers.pool(1)
         # the worker ignores Ctrl-C; this process stops it (one line, no worker traceback)
         future = workers.submit(pool, configuration_chain, scene, "b",
                                 replace(ev, progress=False), cache_root, scene_hash, settings)

@@ -268,10 +268,13 @@ def _output_to(path):
                 os.close(fd)
 
 
-def _child(task: dict, conn) -> None:
+def _child(task: dict, conn, parent: int) -> None:
     """Entry of a local worker process: run the task, send its outcome, exit. Ctrl-C is the
-    parent's to handle (it ends its workers)."""
+    parent's to handle (it ends its workers); a killed parent takes its workers with it."""
+    from artrecon import workers
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    workers.die_with_parent(parent)
     outcome = execute(task)
     conn.send(outcome)
     conn.close()
@@ -315,7 +318,7 @@ class _Local:
 
     def submit(self, task: dict):
         recv, send = self._ctx.Pipe(duplex=False)
-        proc = self._ctx.Process(target=_child, args=(task, send),
+        proc = self._ctx.Process(target=_child, args=(task, send, os.getpid()),
                                  name=f"sweep-{task['spec'].run_id}")
         proc.start()
         send.close()  # the child holds the only sending end: its death reads as EOF here
