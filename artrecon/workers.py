@@ -33,8 +33,9 @@ _PR_SET_PDEATHSIG = 1
 
 
 def die_with_parent(parent: int) -> None:
-    """Worker initializer (or first call of a worker): SIGKILL this process when its parent dies (Linux; elsewhere a
-    no-op), and exit now if the parent is already gone (it died while this one started)."""
+    """Worker initializer (or a worker's first call): SIGKILL this process when its parent
+    dies (Linux; elsewhere a no-op), and exit now if the parent is already gone (it died while
+    this one started)."""
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
         libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
