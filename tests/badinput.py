@@ -65,3 +65,19 @@ def write_images(folder: Path, n: int = 6, size=(64, 48), seed: int = 0, ext: st
         cv2.imwrite(str(folder / f"img_{i:02d}.{ext}"),
                     (rng.random((size[1], size[0], 3)) * 255).astype(np.uint8))
     return folder
+
+
+def case_registry():
+    """A table of bad-input cases and its decorator: ``CASES, case = case_registry()``, then
+    ``@case("needle", ...)`` on a function ``(tmp_path) -> argv`` registers it under its name
+    with the words its message must hold."""
+    cases: dict = {}
+
+    def case(*needles):
+        def register(fn):
+            cases[fn.__name__] = (fn, needles)
+            return fn
+        return register
+
+    return cases, case
+

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 import pytest
 import render_fixture as rf
-from badinput import refused, write_images
+from badinput import case_registry, refused, write_images
 
 from artrecon import io
 from artrecon.cli import main
@@ -68,14 +68,7 @@ def _args(a, b, out, *extra):
     return ["reconstruct", str(a), str(b), "--out", str(out), *extra]
 
 
-CASES = {}
-
-
-def case(*needles):
-    def register(fn):
-        CASES[fn.__name__] = (fn, needles)
-        return fn
-    return register
+CASES, case = case_registry()
 
 
 # image folders

@@ -9,7 +9,7 @@ import os
 
 import numpy as np
 import pytest
-from badinput import refused, tree
+from badinput import case_registry, refused, tree
 from test_export import synthetic_model
 
 from artrecon.cli import main
@@ -35,14 +35,7 @@ def _export(model, fmt, out, *extra):
     return ["export", str(model), "--format", fmt, "--out", str(out), *extra]
 
 
-CASES = {}
-
-
-def case(*needles):
-    def register(fn):
-        CASES[fn.__name__] = (fn, needles)
-        return fn
-    return register
+CASES, case = case_registry()
 
 
 # model files
