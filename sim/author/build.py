@@ -36,14 +36,18 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from sim.assets import OBJECT_TEXEL, SEED, texture_mesh
+from sim.assets import OBJECT_TEXEL, SEED
 from sim.author.source import (
     AuthorError,
-    Primitive,
     SourceObject,
     pose,
     rotation_about,
     transform_points,
+)
+from sim.author.writer import (
+    SceneWriter,
+    joint_range,
+    sanitize,
 )
 
 log = logging.getLogger(__name__)
@@ -58,27 +62,10 @@ MAX_FOOTPRINT_RADIUS = 0.33
 #: tests/test_scenes.py demands of every scene).
 HOLD_TOLERANCE = {"revolute": np.deg2rad(0.5), "prismatic": 1e-3}
 HOLD_SECONDS = 1.0
-#: A joint's friction loss is at least this many times the largest gravity load it carries in
-#: A or B (MuJoCo's friction is soft: with the stiff friction solver settings below, 1.5 times
-#: the load holds the bundled truck's bed), and raised by HOLD_FRICTION_GROWTH per failed check.
-FRICTION_OVER_LOAD = 1.5
+#: A joint's friction loss (sim.author.writer.FRICTION_OVER_LOAD times its load) is raised by
+#: this factor per failed hold check, at most HOLD_TRIES times.
 HOLD_FRICTION_GROWTH = 2.0
 HOLD_TRIES = 4
-#: Friction loss without load, relative to the child subtree's weight (N) times its reach (m,
-#: revolute) or its weight (prismatic): the bundled cabinet's door (0.38 kg, 30 cm) and drawer
-#: (0.52 kg) have 0.5 N m and 0.5 N; these factors give about that for such parts.
-FRICTION_PER_WEIGHT = {"revolute": 0.3, "prismatic": 0.1}
-#: Damping (per unit of friction loss, s): the bundled cabinet's 2 over 0.5.
-DAMPING_PER_FRICTION = 4.0
-ARMATURE = 0.01
-#: MuJoCo's friction loss made stiff, as truck.xml does for its loaded hinge.
-SOLREF_FRICTION = "0.004 1"
-SOLIMP_FRICTION = "0.99 0.999 0.001"
-#: A collision hull thinner than this (m) is replaced by a box around the piece at least this
-#: thick: qhull cannot hull a flat piece, and MuJoCo refuses a mesh without volume.
-MIN_THICKNESS = 0.002
-#: Continuous joints get this range (rad): a full turn either way.
-CONTINUOUS_RANGE = (-math.pi, math.pi)
 #: Up axes the source may have (``--up``): the rotation taking it to +z.
 UP_AXES = {"+z": np.eye(3), "-z": np.diag([1.0, -1.0, -1.0]),
            "+y": rotation_about([1.0, 0.0, 0.0], math.pi / 2),
@@ -200,33 +187,19 @@ def default_name(path: Path) -> str:
     return sanitize(path.stem)
 
 
-def sanitize(name: str) -> str:
-    """A name safe in MJCF and file names: letters, digits, ``_`` and ``-``."""
-    out = re.sub(r"[^A-Za-z0-9_-]+", "_", name).strip("_")
-    if not out:
-        return "part"
-    return out if out[0].isalpha() or out[0] == "_" else f"obj_{out}"
-
-
 # ------------------------------------------------------------------------------- choices
-
-
-def _range(j, scale: float = 1.0) -> np.ndarray:
-    if j.range is None:
-        return np.array(CONTINUOUS_RANGE)
-    return j.range * (scale if j.type == "prismatic" else 1.0)
 
 
 def default_a(j, scale: float = 1.0) -> float:
     """Configuration A of a joint: 0 if inside its range, else the limit nearest 0."""
-    lo, hi = _range(j, scale)
+    lo, hi = joint_range(j, scale)
     return float(min(max(0.0, lo), hi))
 
 
 def default_b(j, a: float, motion: float, scale: float, notes: list[str]) -> float:
     """Configuration B of a joint: ``a`` moved by ``motion`` where the range has room (forward
     first), else as far as the range allows (noted)."""
-    lo, hi = _range(j, scale)
+    lo, hi = joint_range(j, scale)
     if a + motion <= hi + 1e-12:
         return a + motion
     if a - motion >= lo - 1e-12:
@@ -248,7 +221,7 @@ def _check_values(obj: SourceObject, values: Mapping[str, float], which: str,
             raise AuthorError(f"{obj.path}: --config-{which} names the joint {name!r}, which the "
                               f"object does not have; its joints are {names}")
         j = obj.joints[names.index(name)]
-        lo, hi = _range(j, scale)
+        lo, hi = joint_range(j, scale)
         if not lo - 1e-9 <= v <= hi + 1e-9:
             unit = "rad" if j.type == "revolute" else "m"
             raise AuthorError(f"{obj.path}: --config-{which} {name}={v:g} {unit} lies outside "
@@ -265,58 +238,6 @@ def _visual_points(obj: SourceObject, values: Mapping[str, float], U: np.ndarray
         raise AuthorError(f"{obj.path}: the object has no visible geometry; fix: give its links "
                           f"<visual> meshes (URDF) or visible geoms (MJCF, group 0-2)")
     return np.concatenate(pts)
-
-
-# ------------------------------------------------------------------------------- geometry
-
-
-def _hull(v: np.ndarray, name: str):
-    """Convex hull (vertices, faces) of points, or None where it is flat or fails."""
-    import trimesh
-
-    extent = np.ptp(v, axis=0)
-    if len(v) < 4 or np.sort(extent)[0] < MIN_THICKNESS:
-        return None
-    try:
-        hull = trimesh.Trimesh(v, process=False).convex_hull
-    except Exception as err:  # qhull's errors come in several types
-        log.debug("%s: no hull (%s)", name, err)
-        return None
-    # mean thickness of the hull: twice its volume over its area (a slab: its thickness)
-    if hull.volume <= 0 or 2.0 * hull.volume / hull.area < MIN_THICKNESS:
-        return None
-    return np.asarray(hull.vertices, float), np.asarray(hull.faces, np.int64)
-
-
-def _box_around(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Oriented box around points: (half sizes (3,), T_frame_box (4, 4)), at least
-    MIN_THICKNESS thick."""
-    import trimesh
-
-    try:
-        T, extents = trimesh.bounds.oriented_bounds(v)
-        T_frame_box = np.linalg.inv(T)
-    except Exception:  # degenerate input: the axis-aligned box
-        lo, hi = v.min(0), v.max(0)
-        T_frame_box, extents = pose(t=(lo + hi) / 2), hi - lo
-    return np.maximum(np.asarray(extents, float), MIN_THICKNESS) / 2, T_frame_box
-
-
-def _quat(R: np.ndarray) -> np.ndarray:
-    q = np.zeros(4)
-    mujoco.mju_mat2Quat(q, np.ascontiguousarray(R, dtype=float).reshape(-1))
-    return q
-
-
-def _f(*values: float) -> str:
-    return " ".join(f"{v:.6g}" if abs(v) >= 1e-9 else "0" for v in values)
-
-
-def _write_plain_obj(path: Path, v: np.ndarray, f: np.ndarray) -> None:
-    lines = [f"# {path.name}: generated by sim.author, do not edit"]
-    lines += [f"v {a:.6f} {b:.6f} {c:.6f}" for a, b, c in v]
-    lines += [f"f {a} {b} {c}" for a, b, c in f + 1]
-    path.write_text("\n".join(lines) + "\n")
 
 
 # ------------------------------------------------------------------------------- the import
@@ -402,7 +323,7 @@ def import_object(source: str | Path, out_dir: str | Path,
     out_dir.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=out_dir))
     try:
-        writer = _SceneWriter(obj, name, config, s, U, t, tmp, notes)
+        writer = SceneWriter(obj, name, config, s, U, t, tmp, notes)
         writer.build()
         stage = str(stage_of(config.arm))  # by its absolute path while in the temporary folder
         friction = writer.initial_friction(stage, qa, qb)
@@ -479,210 +400,3 @@ def _validate(path: Path, qa: dict, qb: dict) -> set[str]:
             if abs(data.qpos[j.qpos_adr] - j.value(c)) >= 0.5 * HOLD_TOLERANCE[j.type]:
                 creeping.add(j.name)
     return creeping
-
-
-class _SceneWriter:
-    """Assets and XML of one imported scene, written into a folder."""
-
-    def __init__(self, obj: SourceObject, name: str, config: ImportConfig, s: float,
-                 U: np.ndarray, t: np.ndarray, folder: Path, notes: list[str]):
-        self.obj, self.name, self.config, self.s, self.folder = obj, name, config, s, folder
-        self.U, self.t, self.notes = U, t, notes
-        self.T_object_root = pose(U, t)  # for frames; geometry also scales by s
-        self.body_name = {obj.root: "object"}
-        used = {"object"}
-        for j in obj.joints:
-            n = sanitize(j.child)
-            while n in used:
-                n += "_"
-            used.add(n)
-            self.body_name[j.child] = n
-        self.joint_name = {j.name: sanitize(j.name) for j in obj.joints}
-        if len(set(self.joint_name.values())) != len(self.joint_name):
-            raise AuthorError(f"{obj.path}: joint names {sorted(self.joint_name)} are not "
-                              f"distinct once made MJCF-safe; fix: rename them")
-        self.assets: list[str] = []
-        self.geoms: dict[str, list[str]] = {}
-
-    # geometry in each link's own (scaled) frame; the root link's frame is the object's
-    def _to_body(self, link: str, v: np.ndarray) -> np.ndarray:
-        v = np.asarray(v, float) * self.s
-        if link == self.obj.root:
-            return v @ self.U.T + self.t
-        return v
-
-    def _T_body(self, link: str, T: np.ndarray) -> np.ndarray:
-        T = T.copy()
-        T[:3, 3] *= self.s
-        return self.T_object_root @ T if link == self.obj.root else T
-
-    def build(self) -> None:
-        """Textured visual meshes and collision shapes of every link (into ``assets/``)."""
-        adir = self.folder / "assets"
-        adir.mkdir()
-        density = self.config.density
-        for link_name, link in self.obj.links.items():
-            body = self.body_name[link_name]
-            geoms = []
-            if link.visuals and self.config.texture == "source":
-                for i, m in enumerate(link.visuals):
-                    part = f"{self.name}_{body}_{i}" if len(link.visuals) > 1 else \
-                        f"{self.name}_{body}"
-                    self._source_textured(adir, part, link_name, m)
-                    geoms.append(f'<geom name="{part}_visual" class="visual" mesh="{part}" '
-                                 f'material="{part}"/>')
-            elif link.visuals:
-                v = np.concatenate([self._to_body(link_name, m.vertices) for m in link.visuals])
-                offsets = np.cumsum([0] + [len(m.vertices) for m in link.visuals])
-                f = np.concatenate([m.faces + o for m, o in zip(link.visuals, offsets,
-                                                                strict=False)])
-                part = f"{self.name}_{body}"
-                tp = texture_mesh(v, f, adir, part, texel=self.config.texel,
-                                  seed=self.config.seed, generator="sim.author")
-                self.notes.append(f"link {link_name!r} -> body {body!r}: {len(f)} triangles, "
-                                  f"texture {tp.width}x{tp.height} at "
-                                  f"{tp.texel * 1000:.2f} mm per texel")
-                self.assets += [f'<texture name="{part}" type="2d" file="assets/{part}.png"/>',
-                                f'<material name="{part}" texture="{part}" specular="0.1" '
-                                f'shininess="0.1"/>',
-                                f'<mesh name="{part}" file="assets/{part}.obj" '
-                                f'inertia="shell"/>']
-                geoms.append(f'<geom name="{part}_visual" class="visual" mesh="{part}" '
-                             f'material="{part}"/>')
-            pieces = link.collisions or link.visuals
-            k = 0
-            for piece in pieces:
-                if isinstance(piece, Primitive):
-                    T = self._T_body(link_name, piece.T_link_geom)
-                    size = piece.size * self.s
-                    geoms.append(self._primitive(body, k, piece.type, size, T, density))
-                    k += 1
-                    continue
-                v = self._to_body(link_name, piece.vertices)
-                hull = _hull(v, piece.name) if self.config.collision == "hull" else None
-                if hull is None:
-                    half, T = _box_around(v)
-                    geoms.append(self._primitive(body, k, "box", half, T, density))
-                else:
-                    mesh = f"{self.name}_{body}_hull{k}"
-                    _write_plain_obj(adir / f"{mesh}.obj", *hull)
-                    self.assets.append(f'<mesh name="{mesh}" file="assets/{mesh}.obj"/>')
-                    geoms.append(f'<geom name="{mesh}" class="collision" type="mesh" '
-                                 f'mesh="{mesh}" density="{density:g}"/>')
-                k += 1
-            if k == 0:
-                raise AuthorError(f"{self.obj.path}: link {link_name!r} has neither visual nor "
-                                  f"collision geometry; fix: give it a mesh")
-            self.geoms[link_name] = geoms
-
-    def _source_textured(self, adir: Path, part: str, link: str, m) -> None:
-        """One visual mesh with its own UVs and image (``--texture source``)."""
-        from sim.assets import write_png
-
-        if m.uv is None or m.image is None:
-            raise AuthorError(f"{self.obj.path}: the visual mesh {m.name!r} of link {link!r} "
-                              f"has no texture of its own (UVs and an image); fix: import with "
-                              f"--texture generated (the default), which textures every part")
-        v = self._to_body(link, m.vertices)
-        n = np.cross(v[m.faces[:, 1]] - v[m.faces[:, 0]], v[m.faces[:, 2]] - v[m.faces[:, 0]])
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        lines = [f"# {part}.obj: generated by sim.author (the source's own UVs), do not edit"]
-        lines += [f"v {a:.6f} {b:.6f} {c:.6f}" for a, b, c in v]
-        lines += [f"vt {a:.6f} {b:.6f}" for a, b in m.uv.reshape(-1, 2)]
-        lines += [f"vn {a:.6f} {b:.6f} {c:.6f}" for a, b, c in n]
-        lines += ["f " + " ".join(f"{vi + 1}/{3 * k + c + 1}/{k + 1}" for c, vi in enumerate(t))
-                  for k, t in enumerate(m.faces)]
-        (adir / f"{part}.obj").write_text("\n".join(lines) + "\n")
-        write_png(adir / f"{part}.png", np.ascontiguousarray(m.image[..., :3]))
-        self.assets += [f'<texture name="{part}" type="2d" file="assets/{part}.png"/>',
-                        f'<material name="{part}" texture="{part}" specular="0.1" '
-                        f'shininess="0.1"/>',
-                        f'<mesh name="{part}" file="assets/{part}.obj" inertia="shell"/>']
-        self.notes.append(f"link {link!r}: {m.name} keeps its own texture "
-                          f"{m.image.shape[1]}x{m.image.shape[0]}")
-
-    def _primitive(self, body: str, k: int, kind: str, size, T, density: float) -> str:
-        q = _quat(T[:3, :3])
-        return (f'<geom name="{self.name}_{body}_collision{k}" class="collision" type="{kind}" '
-                f'size="{_f(*size)}" pos="{_f(*T[:3, 3])}" quat="{_f(*q)}" '
-                f'density="{density:g}"/>')
-
-    def initial_friction(self, stage: str, qa: dict, qb: dict) -> dict[str, float]:
-        """Friction loss per joint: the baseline of its child's weight, or more than the
-        gravity load it carries in A and B (from a provisional compile)."""
-        friction = {j.name: 0.0 for j in self.obj.joints}
-        self.write(stage, qa, qb, friction)
-        model = mujoco.MjModel.from_xml_path(str(self.folder / f"{self.name}.xml"))
-        data = mujoco.MjData(model)
-        out = {}
-        for j in self.obj.joints:
-            jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, self.joint_name[j.name])
-            dof = int(model.jnt_dofadr[jid])
-            body = int(model.jnt_bodyid[jid])
-            weight = float(model.body_subtreemass[body]) * float(np.linalg.norm(model.opt.gravity))
-            load = 0.0
-            for q in (qa, qb):
-                for other in self.obj.joints:
-                    oid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT,
-                                            self.joint_name[other.name])
-                    data.qpos[model.jnt_qposadr[oid]] = q[other.name]
-                data.qvel[:] = 0
-                mujoco.mj_forward(model, data)
-                load = max(load, abs(float(data.qfrc_bias[dof])))
-            reach = self.config.size if j.type == "revolute" else 1.0
-            base = FRICTION_PER_WEIGHT[j.type] * weight * reach
-            out[j.name] = max(base, FRICTION_OVER_LOAD * load)
-        return out
-
-    def write(self, stage: str, qa: dict, qb: dict, friction: dict[str, float]) -> None:
-        """The scene file (assets written by :meth:`build`)."""
-        obj, names = self.obj, self.body_name
-        children: dict[str, list] = {}
-        for j in obj.joints:
-            children.setdefault(j.parent, []).append(j)
-        lines = [f"<!-- {self.name}: imported from {obj.path} by `python -m sim.author import`",
-                 f"     (scale {self.s:.6g}: source units to metres). Conventions: "
-                 f"scenes/README.md."]
-        lines += [f"     - {n}" for n in self.notes]
-        lines += ["-->", f'<mujoco model="{self.name}">', f'  <include file="{stage}"/>', "",
-                  "  <asset>"]
-        lines += [f"    {a}" for a in self.assets]
-        lines += ["  </asset>", "", "  <worldbody>"]
-
-        def body(link: str, joint, T: np.ndarray, indent: str):
-            b = names[link]
-            if joint is None:
-                lines.append(f'{indent}<body name="object" pos="0 0 0.45">')
-            else:
-                lines.append(f'{indent}<body name="{b}" pos="{_f(*T[:3, 3])}" '
-                             f'quat="{_f(*_quat(T[:3, :3]))}">')
-                rng = _range(joint, self.s)
-                fl = friction[joint.name]
-                kind = "hinge" if joint.type == "revolute" else "slide"
-                lines.append(
-                    f'{indent}  <joint name="{self.joint_name[joint.name]}" type="{kind}" '
-                    f'pos="{_f(*(joint.anchor * self.s))}" axis="{_f(*joint.axis)}" '
-                    f'range="{_f(*rng)}" damping="{DAMPING_PER_FRICTION * fl:.4g}" '
-                    f'frictionloss="{fl:.4g}" armature="{ARMATURE:g}" '
-                    f'solreffriction="{SOLREF_FRICTION}" solimpfriction="{SOLIMP_FRICTION}"/>')
-            lines.extend(f"{indent}  {g}" for g in self.geoms[link])
-            for cj in children.get(link, []):
-                body(cj.child, cj, self._T_body(link, cj.T_parent_child), indent + "  ")
-            lines.append(f"{indent}</body>")
-
-        body(obj.root, None, np.eye(4), "    ")
-        lines += ["  </worldbody>", ""]
-        bodies = [names[n] for n in obj.links]
-        if len(bodies) > 1:
-            lines += ["  <!-- The joints alone guide the links: no contacts between them. -->",
-                      "  <contact>"]
-            lines += [f'    <exclude body1="{a}" body2="{b}"/>'
-                      for i, a in enumerate(bodies) for b in bodies[i + 1:]]
-            lines += ["  </contact>", ""]
-        lines += ["  <!-- Configurations A and B (radians for hinges, metres for slides). -->",
-                  "  <custom>"]
-        for c, q in (("a", qa), ("b", qb)):
-            lines += [f'    <numeric name="config_{c}:{self.joint_name[j.name]}" '
-                      f'data="{q[j.name]:.6g}"/>' for j in obj.joints]
-        lines += ["  </custom>", "</mujoco>", ""]
-        (self.folder / f"{self.name}.xml").write_text("\n".join(lines))
