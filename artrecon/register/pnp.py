@@ -55,7 +55,9 @@ def sift_features(image, *, max_features: int = 4096) -> tuple[np.ndarray, np.nd
         img = cv2.cvtColor(np.ascontiguousarray(img[:, :, :3]), cv2.COLOR_RGB2GRAY)
     if img.ndim != 2 or img.dtype != np.uint8:
         raise ValueError(f"image must be (h, w, 3) or (h, w) uint8, got {img.shape} {img.dtype}")
-    sift = cv2.SIFT_create(nfeatures=max_features)
+    # precise upscaling: OpenCV's default places every keypoint +0.25 px off (see
+    # artrecon.sfm._opencv_features)
+    sift = cv2.SIFT_create(nfeatures=max_features, enable_precise_upscale=True)
     kps, desc = sift.detectAndCompute(img, None)
     if desc is None:
         return np.zeros((0, 2)), np.zeros((0, 128), np.float32)
