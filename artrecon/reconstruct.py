@@ -3,7 +3,8 @@
 Stages (each its own module, plain data between them)::
 
     sfm (per configuration) -> dense (per configuration) -> object region -> features (A x B)
-        -> segment_links -> dense points assigned to links -> estimate_joints -> ArticulatedModel
+        -> segment_links -> dense points the table is seen through dropped (artrecon.freespace)
+        -> dense points assigned to links -> estimate_joints -> ArticulatedModel
 
 The model frame is configuration A's SfM frame: arbitrary scale and placement when the
 cameras were found from the images alone (``model.scale_known`` is False), the frame of the given
