@@ -97,11 +97,14 @@ class AssignConfig:
 
 @dataclass
 class CameraView:
-    """One posed image: ``K`` (3, 3) OpenCV, ``T_cw`` (4, 4) camera from world, grey image."""
+    """One posed image: ``K`` (3, 3) OpenCV, ``T_cw`` (4, 4) camera from world, grey image
+    (float32) and, optionally, the colour image (h, w, 3) uint8 (the table free-space test,
+    :mod:`artrecon.freespace`, needs it)."""
 
     K: np.ndarray
     T_cw: np.ndarray
     image: np.ndarray
+    colour: np.ndarray | None = None
 
     @property
     def centre(self) -> np.ndarray:
@@ -118,16 +121,19 @@ class CameraView:
 
 
 def views_from_sfm(sfm) -> list[CameraView]:
-    """The registered images of an :class:`artrecon.sfm.SfMResult`, grey, full resolution."""
+    """The registered images of an :class:`artrecon.sfm.SfMResult`, grey and colour, full
+    resolution."""
     poses = sfm.T_world_camera()
     views = []
     for name in sorted(poses):
-        img = cv2.imread(str(sfm.image_dir / name), cv2.IMREAD_GRAYSCALE)
-        if img is None:
+        img = cv2.imread(str(sfm.image_dir / name), cv2.IMREAD_COLOR)
+        # the grey image as OpenCV reads it (its own conversion), not converted from ``img``
+        grey = cv2.imread(str(sfm.image_dir / name), cv2.IMREAD_GRAYSCALE)
+        if img is None or grey is None:
             log.warning("assign: cannot read %s; it gives no evidence", name)
             continue
         views.append(CameraView(sfm.intrinsics(name), np.linalg.inv(poses[name]),
-                                img.astype(np.float32)))
+                                grey.astype(np.float32), img[:, :, ::-1].copy()))
     return views
 
 

@@ -3,7 +3,8 @@
 Stages (each its own module, plain data between them)::
 
     sfm (per configuration) -> dense (per configuration) -> object region -> features (A x B)
-        -> segment_links -> dense points assigned to links -> estimate_joints -> ArticulatedModel
+        -> segment_links -> dense points the table is seen through dropped (artrecon.freespace)
+        -> dense points assigned to links -> estimate_joints -> ArticulatedModel
 
 The model frame is configuration A's SfM frame: arbitrary scale and placement when the
 cameras were found from the images alone (``model.scale_known`` is False), the frame of the given
@@ -66,6 +67,7 @@ from artrecon.features import (
     point_descriptors,
     tracked_features,
 )
+from artrecon.freespace import FreeSpaceConfig, seen_through_table, support_plane
 from artrecon.io import (
     Intrinsics,
     check_distinct,
@@ -128,6 +130,7 @@ class ReconstructConfig:
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
     joints: JointConfig = field(default_factory=JointConfig)
     assign: AssignConfig = field(default_factory=AssignConfig)
+    freespace: FreeSpaceConfig = field(default_factory=FreeSpaceConfig)
     confidence: ConfidenceConfig = field(default_factory=ConfidenceConfig)
     guided: GuidedConfig = field(default_factory=GuidedConfig)
 
@@ -513,9 +516,15 @@ def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndar
                                                              anchors, config.guided)
     timings["segment"] = time.perf_counter() - t
     t = time.perf_counter()
+    # dense points the table is seen through (fattened edges of thin links) join no link
+    drop_a = table_free_space(dense_a.points, views_a, occluders_a, config, seed)
+    drop_b = table_free_space(dense_b.points, views_b, occluders_b, config, seed)
     lab_a, lab_b = assign_dense_to_links(
-        dense_a, dense_b, points_a, points_b, seg, views_a=views_a, views_b=views_b,
-        occluders_a=occluders_a, occluders_b=occluders_b, config=config.assign)
+        dense_a.subset(~drop_a), dense_b.subset(~drop_b), points_a, points_b, seg,
+        views_a=views_a, views_b=views_b, occluders_a=occluders_a, occluders_b=occluders_b,
+        config=config.assign)
+    lab_a = _expand(lab_a, ~drop_a)
+    lab_b = _expand(lab_b, ~drop_b)
     links = links_from_labels(dense_a, dense_b, lab_a, lab_b, seg.transforms)
     timings["assign"] = time.perf_counter() - t
     t = time.perf_counter()
@@ -534,6 +543,31 @@ def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndar
     timings["joints"] = time.perf_counter() - t
     return Articulation(seg, root, anchors, lab_a, lab_b, links, tree, joints, confidence,
                         timings, points_a, points_b, guided)
+
+
+def table_free_space(points: np.ndarray, views, occluders, config: ReconstructConfig,
+                     seed: int) -> np.ndarray:
+    """Mask (n,) of the dense points of one configuration that its views see the table through
+    (:func:`artrecon.freespace.seen_through_table`); none without colour views or occluders (the
+    dense points the support plane is fitted to, as the object region fits it)."""
+    drop = np.zeros(len(points), bool)
+    if (not config.freespace.enabled or not views or occluders is None or len(points) == 0
+            or any(v.colour is None for v in views)):
+        return drop
+    centres = np.array([v.centre for v in views])
+    axes = np.array([v.T_cw[2, :3] for v in views])
+    r = config.region
+    plane = support_plane(occluders, centres, axes, radius_fraction=r.radius_fraction,
+                          tolerance=r.plane_tolerance, min_fraction=r.plane_min_fraction,
+                          iterations=r.plane_iterations, seed=seed)
+    return seen_through_table(points, views, plane, config.freespace, seed)
+
+
+def _expand(labels: np.ndarray, kept: np.ndarray) -> np.ndarray:
+    """Labels of the kept points spread back over all points (-1: dropped)."""
+    out = np.full(len(kept), -1, dtype=np.asarray(labels).dtype if len(labels) else int)
+    out[kept] = labels
+    return out
 
 
 def reroot(tree: KinematicTree, root: int) -> KinematicTree:

@@ -172,6 +172,15 @@ RANGES: dict[str, Range | Choice] = {
     "assign.passes": Range(1, 100, "passes"),
     "assign.patch_half": Range(1, 64, "samples"),
     "assign.patch_step_px": Range(0, 100, "pixels", **_OPEN),
+    # --- freespace (artrecon.freespace.FreeSpaceConfig)
+    "freespace.enabled": Range(0, 1, "0 or 1"),
+    "freespace.colour_tolerance": Range(0, 765, "RGB levels, summed over the channels", **_OPEN),
+    "freespace.min_share": Range(0, 1, _FRACTION, **_OPEN),
+    "freespace.margin": Range(0, 10, "a fraction of the camera distance"),
+    "freespace.max_cells": Range(1000, 10_000_000, "mosaic cells"),
+    "freespace.height_search": Range(0, 1, "a fraction of the camera distance"),
+    "freespace.height_samples": Range(100, 1_000_000, "places on the plane"),
+    "freespace.min_views": Range(1, 10_000, "views"),
     # --- confidence (artrecon.confidence.ConfidenceConfig)
     "confidence.min_link_inliers": Range(3, 10_000_000, "matches"),
     "confidence.min_motion_snr": Range(0, 1e6, "times the noise"),
