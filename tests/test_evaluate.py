@@ -454,3 +454,18 @@ def test_swapped_parent_and_child_compare_the_same_motion(truck, truck_samples):
     assert row["links_swapped"] and row["state_error"] == pytest.approx(0.0, abs=1e-9)
     labels_pred = np.array([0, 0, 1, 1, 1])
     assert evaluate.link_correspondence(labels_pred, np.array([1, 1, 0, 0, 1])) == {0: 1, 1: 0}
+
+
+def test_stage_keys_name_the_code_the_process_loaded(monkeypatch):
+    """Once an evaluation has started, editing the files on disk (a merge during a run) does not
+    change the code keys of its stages: they name the code that builds them."""
+    from sim.evaluate import stages
+
+    stages.freeze_code_keys()
+    before = (stages._capture_sources(), stages._configuration_sources(),
+              stages._reconstruct_sources(), stages._manipulate_sources())
+    monkeypatch.setattr(cache, "source_hash", lambda modules: "edited on disk")
+    monkeypatch.setattr(cache, "closure_hash", lambda module, package=None: "edited on disk")
+    stages.freeze_code_keys()
+    assert (stages._capture_sources(), stages._configuration_sources(),
+            stages._reconstruct_sources(), stages._manipulate_sources()) == before

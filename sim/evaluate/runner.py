@@ -76,6 +76,7 @@ from sim.evaluate.scoring import (
 )
 from sim.evaluate.stages import (
     configuration_chains,
+    freeze_code_keys,
     fresh_view_stage,
     last_arm_pose,
     manipulation_stage,
@@ -95,6 +96,8 @@ log = logging.getLogger(__name__)
 def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
     """Run and score one scene; never raises for a failing stage (``error`` says which)."""
     from artrecon.model import ArticulatedModel
+
+    freeze_code_keys()  # the stages are keyed by the code this process runs
 
     out_dir = Path(out_dir)
     cache_root = out_dir / "cache"

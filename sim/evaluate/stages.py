@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import logging
 import platform
 from dataclasses import asdict
@@ -35,18 +36,33 @@ def versions() -> dict:
             "opencv": cv2.__version__, "artrecon": artrecon.__version__}
 
 
+def freeze_code_keys() -> None:
+    """Hash the code of every stage now, once per process (each ``_*_sources`` is cached).
+
+    The stage keys name the code that computes a stage, and that is the code this process
+    loaded, not the files as they are later: hashed from disk at each stage, a file edited
+    while a run goes on (a merge, an editor) filed stages built by the old code under the new
+    code's key, and the next run took them as current. Called when an evaluation starts."""
+    for fn in (_capture_sources, _configuration_sources, _reconstruct_sources,
+               _manipulate_sources):
+        fn()
+
+
+@functools.cache
 def _capture_sources() -> str:
     from sim import camera, capture, render, robot, scene, views
 
     return cache.source_hash([camera, capture, render, robot, scene, views])
 
 
+@functools.cache
 def _reconstruct_sources() -> str:
     import artrecon
 
     return cache.source_hash([artrecon])
 
 
+@functools.cache
 def _configuration_sources() -> str:
     """The code of artrecon's per-configuration stage alone (SfM, dense points, the object
     region: :mod:`artrecon.configuration` and what it imports, and reconstruct.py's functions
@@ -65,6 +81,7 @@ def _configuration_sources() -> str:
     return cache.hash_bytes(*(p.encode() for p in parts))
 
 
+@functools.cache
 def _manipulate_sources() -> str:
     from sim import manipulate, robot, scene, views
     from sim.manipulate import estimate, execute, planning, world
