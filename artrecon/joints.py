@@ -15,12 +15,31 @@ cancels. Then, as in the method:
 
 Links are joined into a tree rooted at the largest link: a minimum spanning tree over the pairs of
 spatially adjacent links (closest points in configuration A within `adjacency_distance` x scene
-size), weighted by their gap, how far their relative motion is from a single joint, and, for a
-revolute motion, how far its axis passes from the two links (a hinge's pin goes through both).
-The last term tells a planar chain apart: in the scraper truck (boom on the chassis, blade on the
-boom, parallel hinges) the blade's motion relative to the chassis is also a clean rotation (by
-the sum of both angles), and the blade hangs as close to the chassis as to the boom; but that
-rotation's axis runs centimetres away from both, while the true hinges touch their links.
+size). Each pair is scored by how well ONE joint located where the two links touch explains their
+relative motion: the cost of the edge is the sum, relative to the scene size, of
+
+- the gap between the links (robust closest-point distance);
+- the single-joint misfit (`single_joint_misfit`): the slide along the axis of a revolute motion
+  (a screw is not one hinge), the residual rotation of a prismatic one;
+- for a revolute motion, how far its axis passes from the links' contact region (`contact_points`:
+  the points of each link within the gap plus `CONTACT_MARGIN` x scene size of the other; the
+  distance is `axis_gap` of those points): a hinge's pin runs through the place where its two
+  links meet. A prismatic motion has no axis position, so no such term.
+
+The axis term tells siblings from parent and child. Two fingers of the Barrett hand each turn on
+the palm about its own (parallel) spread axis; their motion relative to each other is then a clean
+rotation too (by the sum of the two angles, no slide), about an axis between the fingers. With
+a few stray labels where the fingers face each other they even look as close to each other as to
+the palm, whose surface under the knuckles is hidden. But that axis runs 2 cm from the few points
+where the fingers come near each other, while each finger's true axis runs through its knuckle,
+ringed by the points where knuckle and palm meet (about 1.2 cm, the knuckle's half-width). The
+same term tells a planar chain: in the scraper truck (boom on the chassis, blade on the boom,
+parallel hinges) the blade's motion relative to the chassis is also a clean rotation, and the
+blade hangs as close to the chassis as to the boom; but that rotation's axis runs centimetres
+away from where they meet, while the true hinges run through it.
+
+`KinematicTree.edge_figures` keeps every candidate pair's figures and `KinematicTree.margin` how
+much cheaper the chosen tree is than the best other spanning tree (logged).
 """
 
 from __future__ import annotations
@@ -45,11 +64,23 @@ __all__ = [
     "KinematicTree",
     "axis_gap",
     "build_kinematic_tree",
+    "contact_points",
     "estimate_joints",
     "joint_from_motion",
     "relative_motion",
     "single_joint_misfit",
 ]
+
+
+#: The contact region of two adjacent links (where a joint between them must run; see
+#: `contact_points`) is the points of each within their gap plus this fraction of the scene size
+#: of the other: a band a few point spacings wide along the seam (3 mm on the 6 cm Barrett hand,
+#: whose dense points are about 1 mm apart). The hand's tree is the same from 0 (the gap alone)
+#: to 0.2; a band as wide as the links takes in all of them, and the axis term then measures the
+#: axis' distance from the links as wholes, which chains the hand's fingers. (Here, not in
+#: artrecon.tolerances: that module is part of the per-configuration stage's code, whose cache
+#: key an edit of it would change.)
+CONTACT_MARGIN = 0.05
 
 
 @dataclass(frozen=True)
@@ -63,8 +94,11 @@ class JointConfig:
     misfit_weight: float = tol.MISFIT_WEIGHT
     """Weight of the single-joint misfit (relative to scene size) in the tree edge cost."""
     axis_gap_weight: float = 1.0
-    """Weight of the revolute axis' distance from the farther of the two links (relative to
-    scene size) in the tree edge cost (see `axis_gap`)."""
+    """Weight of the revolute axis' distance from the two links' contact region (relative to
+    scene size) in the tree edge cost (see `contact_points` and `axis_gap`)."""
+    contact_margin: float = CONTACT_MARGIN
+    """The contact region of two links: the points of each within their gap plus this x scene
+    size of the other (see `contact_points`)."""
 
 
 @dataclass
@@ -81,12 +115,23 @@ class KinematicTree:
         In breadth-first order from the root.
     gaps : (n_links, n_links) float
         Closest-point distance between every two links (configuration A, model units).
+    costs : (n_links, n_links) float
+        Edge cost of every adjacent pair (relative to scene size; 0: not adjacent).
+    edge_figures : dict (i, j) -> dict, i < j
+        Per adjacent pair: ``gap``, ``misfit``, ``axis_contact`` (model units), ``angle_deg``,
+        ``type``, ``contact`` (contact points of i and j), ``cost``, ``in_tree``.
+    margin : float
+        Cost of the best spanning tree other than the chosen one minus the chosen tree's
+        (relative to scene size; inf when there is no other): how clearly the tree is chosen.
     """
 
     root: int
     parents: np.ndarray
     edges: list[tuple[int, int]] = field(default_factory=list)
     gaps: np.ndarray | None = None
+    costs: np.ndarray | None = None
+    edge_figures: dict = field(default_factory=dict)
+    margin: float = float("inf")
 
     def children(self, link: int) -> list[int]:
         return [c for p, c in self.edges if p == link]
@@ -231,23 +276,33 @@ def build_kinematic_tree(
             raise ReconstructionError(f"build_kinematic_tree: links {empty} have no points")
     size = tol.scene_size(points_a[segmentation.labels >= 0])
     trees = [cKDTree(p) for p in pts]
+    t = segmentation.transforms
     gaps = np.zeros((n_links, n_links))
     cost = np.zeros((n_links, n_links))
+    figures: dict[tuple[int, int], dict] = {}
     for i in range(n_links):
         for j in range(i + 1, n_links):
-            gaps[i, j] = gaps[j, i] = _robust_gap(trees[j], pts[i], trees[i], pts[j])
+            d_i, _ = trees[j].query(pts[i], k=1)  # each point of i to link j
+            d_j, _ = trees[i].query(pts[j], k=1)
+            gaps[i, j] = gaps[j, i] = _robust_gap(d_i, d_j)
             if gaps[i, j] > config.adjacency_distance * size:
                 continue
-            t = segmentation.transforms
+            motion = relative_motion(t[i], t[j])
             # Misfit in both directions (which link is the child is not known yet); the smaller.
-            m_ij = single_joint_misfit(relative_motion(t[i], t[j]), pts[j],
-                                       config.revolute_min_angle)[1]
+            kind, m_ij = single_joint_misfit(motion, pts[j], config.revolute_min_angle)
             m_ji = single_joint_misfit(relative_motion(t[j], t[i]), pts[i],
                                        config.revolute_min_angle)[1]
+            c_i, c_j = contact_points(pts[i], pts[j], d_i, d_j, gaps[i, j],
+                                      config.contact_margin * size)
+            a_gap = axis_gap(motion, c_i, c_j, config.revolute_min_angle)
             w = (gaps[i, j] + config.misfit_weight * min(m_ij, m_ji)
-                 + config.axis_gap_weight * axis_gap(relative_motion(t[i], t[j]), pts[i], pts[j],
-                                                     config.revolute_min_angle)) / size
+                 + config.axis_gap_weight * a_gap) / size
             cost[i, j] = cost[j, i] = w + 1e-12  # csgraph treats 0 as "no edge"
+            figures[(i, j)] = {
+                "type": kind, "gap": float(gaps[i, j]), "misfit": float(min(m_ij, m_ji)),
+                "axis_contact": float(a_gap),
+                "angle_deg": float(np.degrees(rotation_angle(motion.rotation))),
+                "contact": (len(c_i), len(c_j)), "cost": float(w)}
     n_comp, comp = connected_components(cost, directed=False)
     if n_comp > 1:
         lonely = [int(k) for k in range(n_links) if np.sum(comp == comp[k]) < n_links]
@@ -259,6 +314,7 @@ def build_kinematic_tree(
             "JointConfig.adjacency_distance."
         )
     mst = minimum_spanning_tree(cost)
+    tree_pairs = {tuple(sorted((int(a), int(b)))) for a, b in zip(*mst.nonzero(), strict=True)}
     mst = mst + mst.T
     sizes = segmentation.sizes
     root = int(np.argmax(sizes))
@@ -266,24 +322,93 @@ def build_kinematic_tree(
     parents = np.where(preds < 0, -1, preds).astype(np.int64)
     parents[root] = -1
     edges = [(int(parents[c]), int(c)) for c in order if c != root]
-    return KinematicTree(root=root, parents=parents, edges=edges, gaps=gaps)
+    margin = _tree_margin(cost, tree_pairs)
+    for pair, fig in figures.items():
+        fig["in_tree"] = pair in tree_pairs
+        log.info("tree edge %d-%d%s: %s, gap %.3g, misfit %.3g, axis to contact %.3g (model "
+                 "units), relative angle %.2f deg, contact %d/%d points; cost %.4f x scene size",
+                 pair[0], pair[1], " (in tree)" if fig["in_tree"] else "", fig["type"],
+                 fig["gap"], fig["misfit"], fig["axis_contact"], fig["angle_deg"],
+                 *fig["contact"], fig["cost"])
+    log.info("kinematic tree %s (root %d), margin over the next best tree %.4f x scene size",
+             edges, root, margin)
+    return KinematicTree(root=root, parents=parents, edges=edges, gaps=gaps, costs=cost,
+                         edge_figures=figures, margin=margin)
+
+
+def contact_points(points_i: np.ndarray, points_j: np.ndarray, dist_i: np.ndarray,
+                   dist_j: np.ndarray, gap: float, margin: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The contact region of two links: the points of each within ``gap + margin`` of the other.
+
+    Where two links are jointed they meet; the points near the other link surround the joint
+    (a knuckle's rim on the palm, a hinge's edge), even when the joint itself is hidden.
+
+    Parameters
+    ----------
+    points_i, points_j : (n, 3), (m, 3) float
+        The two links' points, configuration A.
+    dist_i, dist_j : (n,), (m,) float
+        Each point's distance to the nearest point of the other link.
+    gap : float
+        The links' robust gap (`_robust_gap` of the two distance sets).
+    margin : float
+        Model units.
+
+    Returns
+    -------
+    (n_i, 3), (n_j, 3) float
+        Each link's contact points; not empty (the robust gap has at least
+        ``ADJACENCY_ROBUST_K`` points of each link within it).
+    """
+    r = gap + margin
+    return points_i[dist_i <= r], points_j[dist_j <= r]
+
+
+def _tree_margin(cost: np.ndarray, tree_pairs: set[tuple[int, int]]) -> float:
+    """Cost of the cheapest spanning tree other than the minimum one, minus the minimum's.
+
+    The second-best spanning tree differs from the minimum one by one swap: a non-tree edge in,
+    the dearest tree edge on the cycle it closes out. inf when no other tree exists."""
+    n = len(cost)
+    nbrs: dict[int, list[int]] = {k: [] for k in range(n)}
+    for a, b in tree_pairs:
+        nbrs[a].append(b)
+        nbrs[b].append(a)
+
+    def path_max(a: int, b: int) -> float:  # dearest edge on the tree path a .. b
+        stack = [(a, -1, 0.0)]
+        while stack:
+            u, prev, worst = stack.pop()
+            if u == b:
+                return worst
+            stack.extend((v, u, max(worst, cost[u, v])) for v in nbrs[u] if v != prev)
+        return float("inf")
+
+    best = float("inf")
+    for a in range(n):
+        for b in range(a + 1, n):
+            if cost[a, b] > 0 and (a, b) not in tree_pairs:
+                best = min(best, float(cost[a, b] - path_max(a, b)))
+    return best
 
 
 def axis_gap(motion: Similarity, points_i: np.ndarray, points_j: np.ndarray,
              revolute_min_angle: float) -> float:
-    """How far the axis of a revolute relative motion passes from the farther of two links.
+    """How far the axis of a revolute relative motion passes from the farther of two point sets.
 
-    A hinge joins two links through its pin, so its axis passes through (or next to) both. The
-    distance of the axis line to a link is the k-th smallest distance of its points to the line
-    (the robust k of the gap between links). 0 for a prismatic motion
-    (its axis position means nothing).
+    A hinge joins two links through its pin, so its axis passes through (or next to) both, and
+    through the region where they meet (build_kinematic_tree passes each link's `contact_points`).
+    The distance of the axis line to a point set is the k-th smallest distance of its points to
+    the line (the robust k of the gap between links). 0 for a prismatic motion (its axis position
+    means nothing).
 
     Parameters
     ----------
     motion : Similarity
         Relative motion of link j to link i (either way round: the same axis line).
     points_i, points_j : (n, 3) float
-        The two links' points, configuration A.
+        Points of the two links (all of them, or their contact points), configuration A.
     revolute_min_angle : float
 
     Returns
@@ -323,12 +448,12 @@ def _robust_k(n: int) -> int:
     return min(max(tol.ADJACENCY_ROBUST_K, int(np.ceil(tol.ADJACENCY_ROBUST_SHARE * n))), n) - 1
 
 
-def _robust_gap(tree_j, pts_i, tree_i, pts_j) -> float:
+def _robust_gap(dist_i: np.ndarray, dist_j: np.ndarray) -> float:
     """Closest-point distance between two links, ignoring a few stray points (the k-th smallest
-    nearest-neighbour distance, k from `_robust_k`, in both directions)."""
+    nearest-neighbour distance, k from `_robust_k`, in both directions), from each link's points'
+    distances to the other link."""
     gaps = []
-    for tree, pts in ((tree_j, pts_i), (tree_i, pts_j)):
-        d, _ = tree.query(pts, k=1)
+    for d in (dist_i, dist_j):
         k = _robust_k(len(d))
         gaps.append(float(np.partition(d, k)[k]))
     return max(gaps)

@@ -570,6 +570,16 @@ def _expand(labels: np.ndarray, kept: np.ndarray) -> np.ndarray:
     return out
 
 
+def tree_record(tree: KinematicTree) -> dict:
+    """The tree's choice, for model.json: its edges, its margin over the next best tree and every
+    adjacent pair's figures (:attr:`KinematicTree.edge_figures`)."""
+    return {"edges": [list(e) for e in tree.edges], "root": int(tree.root),
+            "margin": float(tree.margin) if np.isfinite(tree.margin) else None,
+            "pairs": [{"links": list(pair), **{k: (list(v) if isinstance(v, tuple) else v)
+                                               for k, v in fig.items()}}
+                      for pair, fig in sorted(tree.edge_figures.items())]}
+
+
 def reroot(tree: KinematicTree, root: int) -> KinematicTree:
     """The same tree with another root (edges re-oriented, breadth-first from the new root)."""
     n = len(tree.parents)
@@ -587,7 +597,8 @@ def reroot(tree: KinematicTree, root: int) -> KinematicTree:
                 parents[v] = u
                 edges.append((u, v))
                 queue.append(v)
-    return KinematicTree(root=root, parents=parents, edges=edges, gaps=tree.gaps)
+    # the pairs' figures, costs and margin do not depend on the root
+    return replace(tree, root=root, parents=parents, edges=edges)
 
 
 def _resolve_inputs(images, intrinsics, poses_arg, which: str):
@@ -820,6 +831,8 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
             "root_background_matches": len(art.anchors[root][0]) if art.anchors else 0,
             "link_matches": seg.sizes.tolist(),
             "confidence": art.confidence,
+            # every adjacent pair's figures and how clearly the tree won (artrecon.joints)
+            "kinematic_tree": tree_record(art.tree),
             "dense_unassigned": {"a": int((art.labels_a < 0).sum()),
                                  "b": int((art.labels_b < 0).sum())},
             "config": _jsonable(asdict(config)),

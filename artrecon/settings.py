@@ -153,6 +153,7 @@ RANGES: dict[str, Range | Choice] = {
     "joints.adjacency_distance": Range(0, 100, "a fraction of the scene size", **_OPEN),
     "joints.misfit_weight": Range(0, 1e6, "a weight"),
     "joints.axis_gap_weight": Range(0, 1e6, "a weight"),
+    "joints.contact_margin": Range(0, 100, "a fraction of the scene size"),
     # --- assign (artrecon.assign.AssignConfig)
     "assign.residual_factor": Range(0, 1000, "times the link's residual", **_OPEN),
     "assign.spacing_factor": Range(0, 1000, "point spacings", **_OPEN),

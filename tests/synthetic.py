@@ -162,6 +162,85 @@ def make_object(
     return SyntheticObject(pa[perm], pb[perm], lab[perm], joints, link_motions, frame_b, noise)
 
 
+def box_surface(rng, lo, hi, density: float, skip: tuple[str, ...] = ()) -> np.ndarray:
+    """Points sampled uniformly on the faces of the box [lo, hi] (about `density` per unit area),
+    as dense stereo sees a solid: its surface only. `skip` leaves faces out ("-z", "+x" ...)."""
+    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+    out = []
+    for axis in range(3):
+        others = [a for a in range(3) if a != axis]
+        area = float(np.prod(hi[others] - lo[others]))
+        for sign, value in (("-", lo[axis]), ("+", hi[axis])):
+            if f"{sign}{'xyz'[axis]}" in skip:
+                continue
+            n = max(1, int(round(density * area)))
+            pts = rng.uniform(lo, hi, size=(n, 3))
+            pts[:, axis] = value
+            out.append(pts)
+    return np.vstack(out)
+
+
+@dataclass
+class SiblingFingers:
+    points_a: np.ndarray  # (n, 3) the links' surface points, configuration A (world)
+    labels: np.ndarray  # (n,) 0 palm, 1 and 2 the fingers
+    link_motions: list[Similarity]  # per link, A -> B (B's own frame and scale)
+    parents: list[int]  # true parent of each link (-1 for the palm)
+    hinges: list[np.ndarray]  # true axis point of fingers 1 and 2 (the axes are along z)
+
+
+def make_sibling_fingers(seed: int = 0, angle_deg: float = 30.0, sibling_gap: float = 0.0008,
+                         base_gap: float = 0.001, density: float = 4e5) -> SiblingFingers:
+    """Two fingers hinged on a palm, touching each other more than they touch the palm.
+
+    After the Barrett hand (metres): a 12 x 12 x 4 cm palm on the table (its bottom unseen), its
+    top at z = 0; on it two fingers
+    at y = +-2.5 cm, each a 3 x 3 x 6 cm post standing ``base_gap`` above the palm (the palm
+    under the post and the post's bottom are hidden, as under a real knuckle) with an arm to -x
+    whose tip bends over to the other finger: the two tips face each other ``sibling_gap`` apart
+    over 3 x 3 cm. Each finger turns about the vertical axis through its post by ``angle_deg``,
+    mirror images of each other, as the hand's spread. Their motion relative to each other is a
+    clean rotation by twice the angle about a vertical axis between the posts, 1 cm from either
+    (nearer the fingers than each finger's own axis is to its post's surface, 1.5 cm), but
+    6 cm from where the fingers touch. Configuration B has its own frame and scale.
+    """
+    rng = np.random.default_rng(seed)
+    a, half = 0.025, 0.015
+    palm = box_surface(rng, [-0.06, -0.06, -0.04], [0.06, 0.06, 0.0], density,
+                       skip=("-z",))  # standing on the table
+    hidden = np.zeros(len(palm), dtype=bool)
+    for y in (a, -a):  # the palm's top under each post
+        hidden |= ((palm[:, 2] == 0.0) & (np.abs(palm[:, 0]) < half)
+                   & (np.abs(palm[:, 1] - y) < half))
+    parts = [palm[~hidden]]
+    hinges = []
+    for side in (1.0, -1.0):
+        y = side * a
+        z0 = base_gap
+        finger = [
+            box_surface(rng, [-half, y - half, z0], [half, y + half, z0 + 0.06], density,
+                        skip=("-z",)),  # post
+            box_surface(rng, [-0.09, y - 0.008, z0 + 0.03], [-half, y + 0.008, z0 + 0.06],
+                        density),  # arm to -x
+        ]
+        inner = side * sibling_gap / 2  # the tip's face towards the other finger
+        lo_y, hi_y = sorted((inner, y - side * 0.008))
+        finger.append(box_surface(rng, [-0.09, lo_y, z0 + 0.03], [-0.06, hi_y, z0 + 0.06],
+                                  density))  # tip, bent over to the other finger
+        parts.append(np.vstack(finger))
+        hinges.append(np.array([0.0, y, 0.0]))
+    points = np.vstack(parts)
+    labels = np.repeat(np.arange(3), [len(q) for q in parts])
+    frame_b = Similarity(Rotation.random(random_state=int(rng.integers(2**31))).as_matrix(),
+                         rng.uniform(-1, 1, 3), float(np.exp(rng.uniform(-1.0, 1.0))))
+    motions = [frame_b]
+    for hinge, sign in zip(hinges, (1.0, -1.0), strict=True):
+        rot = Rotation.from_rotvec(sign * np.deg2rad(angle_deg) * np.array([0.0, 0.0, 1.0]))
+        r = rot.as_matrix()
+        motions.append(frame_b @ Similarity(r, hinge - r @ hinge, 1.0))
+    return SiblingFingers(points, labels, motions, [-1, 0, 0], hinges)
+
+
 def match_links(pred: np.ndarray, true: np.ndarray, n_true: int) -> dict[int, int]:
     """Map each predicted link to the true link holding most of its members (majority vote)."""
     mapping = {}

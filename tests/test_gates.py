@@ -35,16 +35,6 @@ SCENES = tuple(list_scenes())
 #: figure measured (the suite at 30faea6 on the 2-core machine); strict xfails. Empty: every gate
 #: of every scene passes.
 KNOWN_MISSES: dict[tuple[str, str], str] = {
-    ("barrett_hand", "axis_position_mm"):
-        "finger2's spread axis 14.5 mm off (limit 2): finger2 is made a child of finger1",
-    ("barrett_hand", "state_error"):
-        "finger2's spread 29.9 deg off (limit 0.5): measured against finger1, not the palm",
-    ("barrett_hand", "tree"):
-        "the two spread fingers touch: finger2 is reported as finger1's child (both are the "
-        "palm's); right in a full run before f1c2c1a (assign) and the issue-22 merge",
-    ("barrett_hand", "manipulation"):
-        "joint_2_1 (finger2 about finger1's frame): grasp lost, relative error 0.939, peak "
-        "60.1 N > 53.2 N: it follows the wrong tree",
     ("cabinet_door_only", "manipulation"):
         "door: grasp lost at 3% of the turn, the arm met the carcass's left side "
         "(cabinet_left); relative error 0.966, peak 61.9 N > 11.1 N",
