@@ -274,3 +274,27 @@ def test_apply_registration_maps_everything():
     np.testing.assert_array_equal(again.links[2].points, reg.links[2].points)
     with pytest.raises(TypeError):
         apply_registration(model, T.matrix)
+
+
+def test_fresh_view_keypoints_are_not_shifted():
+    """PnP's keypoints turn with the image: those of the image rotated by 180 deg, mapped back
+    (OpenCV's x -> width - 1 - x), land on the image's own; OpenCV's default upsampling put
+    them 0.5 px apart (+0.25 px each, see artrecon.sfm._opencv_features)."""
+    import cv2
+
+    from artrecon.register.pnp import sift_features
+
+    rng = np.random.default_rng(3)
+    img = np.full((150, 200), 128, np.float32)
+    for _ in range(60):
+        c = (int(rng.integers(0, 200)), int(rng.integers(0, 150)))
+        cv2.circle(img, c, int(rng.integers(2, 14)), float(rng.integers(0, 256)), -1)
+    img = np.clip(cv2.GaussianBlur(img, (0, 0), 1.2), 0, 255).astype(np.uint8)
+    own, _ = sift_features(img)
+    turned, _ = sift_features(img[::-1, ::-1].copy())
+    back = np.array([199.0, 149.0]) - turned
+    d = np.linalg.norm(own[:, None] - back[None], axis=2)
+    j = d.argmin(axis=1)
+    close = d[np.arange(len(own)), j] < 0.75
+    assert close.sum() > 20
+    np.testing.assert_allclose(np.median(own[close] - back[j[close]], axis=0), 0.0, atol=0.05)

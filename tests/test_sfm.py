@@ -173,3 +173,45 @@ def test_layout_error_catches_a_folded_ring():
     folded = [[np.cos(a), np.sin(a), 0.5] for a in folded_ang]
     assert sfm.layout_error(result(good), ref) < 1e-9
     assert sfm.layout_error(result(folded), ref) > sfm.SfMConfig().max_layout_error
+
+
+def _blobs(size, seed):
+    """A grey image of smooth blobs: SIFT finds keypoints in every octave."""
+    rng = np.random.default_rng(seed)
+    img = np.full((size[1], size[0]), 128, np.float32)
+    for _ in range(60):
+        c = (int(rng.integers(0, size[0])), int(rng.integers(0, size[1])))
+        cv2.circle(img, c, int(rng.integers(2, 14)), float(rng.integers(0, 256)), -1)
+    return np.clip(cv2.GaussianBlur(img, (0, 0), 1.2), 0, 255).astype(np.uint8)
+
+
+def test_opencv_keypoints_are_not_shifted(tmp_path):
+    """The OpenCV extractor's keypoints turn with the image: those of an image rotated by 180 deg,
+    mapped back (COLMAP's x -> width - x), land where the image's own are. OpenCV's default
+    upsampled first octave puts every keypoint +0.25 px off in x and y, which the rotation turns
+    into -0.25 px: 0.5 px apart (artrecon.sfm._opencv_features; a 3D error on thin links)."""
+    import pycolmap
+
+    size = (200, 150)
+    for i in range(3):
+        img = _blobs(size, i)
+        cv2.imwrite(str(tmp_path / f"img_{i}a.png"), img)
+        cv2.imwrite(str(tmp_path / f"img_{i}b.png"), img[::-1, ::-1].copy())
+    s = io.load_image_folder(tmp_path)
+    db_path = tmp_path / "out" / "database.db"
+    db_path.parent.mkdir()
+    sfm.extract(s, db_path, None, sfm.SfMConfig(extractor="opencv"))
+    with pycolmap.Database.open(db_path) as db:
+        kps = {im.name: np.asarray(db.read_keypoints(im.image_id))[:, :2]
+               for im in db.read_all_images()}
+    offsets = []
+    for i in range(3):
+        own, turned = kps[f"img_{i}a.png"], kps[f"img_{i}b.png"]
+        back = np.array(size, float) - turned
+        d = np.linalg.norm(own[:, None] - back[None], axis=2)
+        j = d.argmin(axis=1)
+        close = d[np.arange(len(own)), j] < 0.75
+        offsets.append(own[close] - back[j[close]])
+    offsets = np.vstack(offsets)
+    assert len(offsets) > 50
+    np.testing.assert_allclose(np.median(offsets, axis=0), 0.0, atol=0.05)
