@@ -32,29 +32,34 @@ pytestmark = pytest.mark.slow
 SCENES = tuple(list_scenes())
 
 #: {(scene, gate): reason} of the gates a scene misses at the default configuration, with the
-#: figure measured (the suite at 30faea6 on the 2-core machine); strict xfails. Empty: every gate
-#: of every scene passes.
+#: figure measured (the main job on the 2-core machine at a635ac1's code: runs/final); strict
+#: xfails, except for the scenes of NOT_REMEASURED. Empty: every gate of every scene passes.
+#: Measured at a635ac1: truck, scissors and barrett_hand pass every gate (the keypoint fix, the
+#: table free-space filter and the contact-scored tree), cabinet_door_only misses one.
 KNOWN_MISSES: dict[tuple[str, str], str] = {
     ("cabinet_door_only", "manipulation"):
-        "door: grasp lost at 3% of the turn, the arm met the carcass's left side "
-        "(cabinet_left); relative error 0.966, peak 61.9 N > 11.1 N",
+        "door: grasp lost at 7% of the turn, the arm met the carcass's left side "
+        "(cabinet_left); peak 14.7 N > 2.0 N (a635ac1; branch issue-19-manip fixes it in its "
+        "own driver, not yet through the harness)",
     ("pliers", "axis_angle_deg"):
-        "1.64 deg (limit 0.5): the thin flat handle's tilt is poorly conditioned (bootstrap "
-        "spread 0.45 deg; 0.05 deg with COLMAP's SIFT in an earlier run)",
-    ("pliers", "segmentation_accuracy"): "0.963 (limit 0.97)",
-    ("pliers", "off_object_share"): "0.066 of the model's points off the object (limit 0.05)",
-    ("pliers_panda", "segmentation_accuracy"): "0.963 (limit 0.97)",
-    ("pliers_panda", "off_object_share"): "0.068 (limit 0.05)",
-    ("scissors", "off_object_share"): "0.112 (limit 0.05), cause not traced yet; "
-                                      "its joint passes",
-    ("scraper_truck", "axis_angle_deg"): "boom 1.06 deg, blade 1.22 deg (limit 0.5)",
+        "1.64 deg at 369e9c3 (limit 0.5); 0.15 deg after the keypoint fix in helper-8's run, "
+        "not re-measured at a635ac1",
+    ("pliers", "segmentation_accuracy"): "0.963 at 369e9c3 (limit 0.97)",
+    ("pliers", "off_object_share"): "0.066 at 369e9c3 (limit 0.05); 0.043 with the table "
+                                    "free-space filter on the old keypoints",
+    ("pliers_panda", "segmentation_accuracy"): "0.963 at 369e9c3 (limit 0.97)",
+    ("pliers_panda", "off_object_share"): "0.068 at 369e9c3 (limit 0.05)",
+    ("scraper_truck", "axis_angle_deg"): "boom 1.06 deg, blade 1.22 deg at 369e9c3 (limit 0.5)",
     ("scraper_truck", "manipulation"):
-        "blade (joint_1_2): no grasp candidate planned (1066 candidates, 90 usable, 40 tried: "
-        "the arm touches the model's other links or cannot reach)",
-    ("truck", "manipulation"):
-        "joint_0_1: grasp lost before the end, relative error 0.064 (limit 0.05), peak 27.7 N > "
-        "11.6 N",
+        "blade (joint_1_2): no grasp candidate planned at 369e9c3 (1066 candidates, 90 usable, "
+        "40 tried: the arm touches the model's other links or cannot reach)",
 }
+
+#: Scenes whose listed misses were not measured again after the last change that can alter
+#: them (the session ran out of time before their evaluation at a635ac1 finished): their
+#: entries are plain xfails, so a pass shows as XPASS instead of failing the suite, while a
+#: gate not listed still fails it. Empty when every scene was measured at the current code.
+NOT_REMEASURED: frozenset[str] = frozenset({"pliers", "pliers_panda", "scraper_truck"})
 
 _RESULTS: dict[str, dict] = {}
 
@@ -111,10 +116,13 @@ def test_the_gates_run_the_main_jobs_defaults():
     assert replace(cli_default, progress=False) == evaluate.EvalConfig(progress=False)
 
 
-def gate_params(names, known_misses: dict[tuple[str, str], str]) -> list:
+def gate_params(names, known_misses: dict[tuple[str, str], str],
+                not_remeasured: frozenset[str] = frozenset()) -> list:
     """(name, gate) for every gate of every name; a known miss as a strict xfail with its
-    reason (also used by test_author_gates)."""
-    return [pytest.param(n, g, marks=pytest.mark.xfail(strict=True, reason=known_misses[(n, g)]))
+    reason (also used by test_author_gates); for a scene in ``not_remeasured`` a plain xfail
+    (its last figure predates a change that may have fixed it: a pass is reported, not failed)."""
+    return [pytest.param(n, g, marks=pytest.mark.xfail(strict=n not in not_remeasured,
+                                                       reason=known_misses[(n, g)]))
             if (n, g) in known_misses else pytest.param(n, g)
             for n in names for g in gates.GATE_NAMES]
 
@@ -128,7 +136,7 @@ def assert_gate(name: str, result: dict, gate: str) -> None:
         assert result["error"] is None
 
 
-@pytest.mark.parametrize(("name", "gate"), gate_params(SCENES, KNOWN_MISSES))
+@pytest.mark.parametrize(("name", "gate"), gate_params(SCENES, KNOWN_MISSES, NOT_REMEASURED))
 def test_gate(name, gate, out_dir):
     """One gate of one scene, as the main job's verdict judges it."""
     assert_gate(name, _result(name, out_dir), gate)
