@@ -458,6 +458,39 @@ class RegionConfig:
     the object)."""
 
 
+def fit_support_plane(P: np.ndarray, centres: np.ndarray, tol: float, iterations: int,
+                      min_fraction: float, seed: int = 0):
+    """The plane the object stands on among points ``P`` (m, 3): RANSAC for the dominant plane
+    (inlier band ``tol``, ``iterations`` triplets from ``seed``), refitted to its inliers.
+
+    Returns ``(normal (3,), centroid (3,), inliers (m,) bool)``, the normal towards the cameras,
+    or None when the plane holds fewer than ``min_fraction`` of the points or the cameras
+    (``centres`` (k, 3)) lie on both sides of it (not a support plane)."""
+    rng = np.random.default_rng(seed)
+    best, best_n = None, 0
+    for _ in range(iterations):
+        a, b, c = P[rng.choice(len(P), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        if np.linalg.norm(n) < 1e-12:
+            continue
+        n /= np.linalg.norm(n)
+        cnt = int((np.abs((P - a) @ n) < tol).sum())
+        if cnt > best_n:
+            best, best_n = (n, a), cnt
+    if best is None or best_n < min_fraction * len(P):
+        return None
+    n, a = best
+    inl = np.abs((P - a) @ n) < tol
+    # refine the plane on its inliers
+    q = P[inl]
+    cen = q.mean(0)
+    n = np.linalg.svd(q - cen, full_matrices=False)[2][2]
+    side = (centres - cen) @ n
+    if not (np.all(side > 0) or np.all(side < 0)):
+        return None  # cameras on both sides: not a support plane
+    return (n if np.median(side) > 0 else -n), cen, inl
+
+
 def object_region(points: np.ndarray, centres: np.ndarray, axes: np.ndarray,
                   config: RegionConfig = RegionConfig(), seed: int = 0) -> np.ndarray:
     """Mask (n,) of the points that belong to the object rather than the background.
@@ -488,31 +521,13 @@ def object_region(points: np.ndarray, centres: np.ndarray, axes: np.ndarray,
     idx = np.flatnonzero(mask)
     if len(idx) < 10:
         return mask
-    rng = np.random.default_rng(seed)
     P = points[idx]
     tol = config.plane_tolerance * cam_dist
-    best, best_n = None, 0
-    for _ in range(config.plane_iterations):
-        a, b, c = P[rng.choice(len(P), 3, replace=False)]
-        n = np.cross(b - a, c - a)
-        if np.linalg.norm(n) < 1e-12:
-            continue
-        n /= np.linalg.norm(n)
-        cnt = int((np.abs((P - a) @ n) < tol).sum())
-        if cnt > best_n:
-            best, best_n = (n, a), cnt
-    if best is None or best_n < config.plane_min_fraction * len(P):
+    plane = fit_support_plane(P, centres, tol, config.plane_iterations,
+                              config.plane_min_fraction, seed)
+    if plane is None:
         return mask
-    n, a = best
-    inl = np.abs((P - a) @ n) < tol
-    # refine the plane on its inliers
-    q = P[inl]
-    cen = q.mean(0)
-    n = np.linalg.svd(q - cen, full_matrices=False)[2][2]
-    side = (centres - cen) @ n
-    if not (np.all(side > 0) or np.all(side < 0)):
-        return mask  # cameras on both sides: not a support plane
-    n = n if np.median(side) > 0 else -n
+    n, cen, inl = plane
     height = (P - cen) @ n
     # Cut just above the table's own noise rather than at the RANSAC band: a thin object lying
     # on the table (scissors: 0.5 - 9 mm high, cameras 0.39 m away, band 3.9 mm) would lose all

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from artrecon.dense import focus_point
+from artrecon.dense import fit_support_plane, focus_point
 
 log = logging.getLogger(__name__)
 
@@ -102,28 +102,11 @@ def support_plane(points: np.ndarray, centres: np.ndarray, axes: np.ndarray, *,
     P = points[np.linalg.norm(points - focus, axis=1) < radius_fraction * cam_dist]
     if len(P) < 10:
         return None
-    rng = np.random.default_rng(seed)
-    tol = tolerance * cam_dist
-    best, best_n = None, 0
-    for _ in range(iterations):
-        a, b, c = P[rng.choice(len(P), 3, replace=False)]
-        n = np.cross(b - a, c - a)
-        if np.linalg.norm(n) < 1e-12:
-            continue
-        n /= np.linalg.norm(n)
-        cnt = int((np.abs((P - a) @ n) < tol).sum())
-        if cnt > best_n:
-            best, best_n = (n, a), cnt
-    if best is None or best_n < min_fraction * len(P):
+    found = fit_support_plane(P, centres, tolerance * cam_dist, iterations, min_fraction, seed)
+    if found is None:
         return None
-    n, a = best
-    q = P[np.abs((P - a) @ n) < tol]
-    cen = q.mean(0)
-    n = np.linalg.svd(q - cen, full_matrices=False)[2][2]
-    side = (centres - cen) @ n
-    if not (np.all(side > 0) or np.all(side < 0)):
-        return None
-    n = n if np.median(side) > 0 else -n
+    n, cen, inl = found
+    q = P[inl]
     h = (q - cen) @ n
     return Plane(n, cen + float(np.median(h)) * n)
 
