@@ -8,7 +8,8 @@ writes ``DIR/NAME.xml`` with ``DIR/assets/NAME_*``: a scene of this harness that
 object") for a walk-through.
 """
 
-from sim.author.build import ImportConfig, ImportResult, import_object
+from sim.author.build import ImportResult, import_object
+from sim.author.config import ImportConfig
 from sim.author.source import AuthorError
 
 __all__ = ["AuthorError", "ImportConfig", "ImportResult", "import_object"]

@@ -9,7 +9,8 @@ import re
 import sys
 from pathlib import Path
 
-from sim.author.build import UP_AXES, ImportConfig, import_object
+from sim.author.build import import_object
+from sim.author.config import UP_AXES, ImportConfig
 from sim.author.source import AuthorError
 
 #: Units a joint value may carry on the command line, to radians or metres.

@@ -22,7 +22,7 @@ from sim.author.source import (
 )
 
 if TYPE_CHECKING:
-    from sim.author.build import ImportConfig
+    from sim.author.config import ImportConfig
 
 log = logging.getLogger(__name__)
 
