@@ -42,6 +42,7 @@ from scipy.ndimage import map_coordinates, minimum_filter
 from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
+from artrecon.errors import ReconstructionError
 from artrecon.potts import potts_expansion
 
 log = logging.getLogger(__name__)
@@ -130,8 +131,9 @@ def views_from_sfm(sfm) -> list[CameraView]:
         # the grey image as OpenCV reads it (its own conversion), not converted from ``img``
         grey = cv2.imread(str(sfm.image_dir / name), cv2.IMREAD_GRAYSCALE)
         if img is None or grey is None:
-            log.warning("assign: cannot read %s; it gives no evidence", name)
-            continue
+            # a missing view would silently weaken the labels (and change the tree)
+            raise ReconstructionError(f"cannot read image {sfm.image_dir / name} of the "
+                                      "reconstruction; put it back or reconstruct again")
         views.append(CameraView(sfm.intrinsics(name), np.linalg.inv(poses[name]),
                                 grey.astype(np.float32), img[:, :, ::-1].copy()))
     return views
