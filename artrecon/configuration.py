@@ -36,15 +36,8 @@ from threadpoolctl import threadpool_limits
 from artrecon._version import __version__
 from artrecon.dense import DenseConfig, DensePoints, RegionConfig, dense_points, object_region
 from artrecon.errors import InputError, ReconstructionError
-from artrecon.io import (
-    ImageSet,
-    Intrinsics,
-    load_cameras_json,
-    read_json,
-    read_ply,
-    write_json_atomic,
-    write_ply,
-)
+from artrecon.files import read_json, read_ply, write_json_atomic, write_ply
+from artrecon.io import ImageSet, Intrinsics, load_cameras_json
 from artrecon.sfm import SfMConfig, SfMResult, layout_error, run_sfm
 
 log = logging.getLogger(__name__)

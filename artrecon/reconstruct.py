@@ -67,17 +67,14 @@ from artrecon.features import (
     point_descriptors,
     tracked_features,
 )
+from artrecon.files import check_output_dir, make_work_dir, publish_dir, write_ply
 from artrecon.freespace import FreeSpaceConfig, seen_through_table, support_plane
 from artrecon.io import (
     Intrinsics,
     check_distinct,
-    check_output_dir,
     load_cameras_json,
     load_image_folder,
-    make_work_dir,
     parse_intrinsics,
-    publish_dir,
-    write_ply,
 )
 from artrecon.joints import JointConfig, KinematicTree, build_kinematic_tree, estimate_joints
 from artrecon.model import ArticulatedModel, Link

@@ -44,8 +44,8 @@ import numpy as np
 from PIL import Image
 from tqdm import tqdm
 
+from artrecon.files import check_output_dir, check_output_path
 from artrecon.geometry import rotation_angle
-from artrecon.io import check_output_dir, check_output_path
 from sim import render, robot, views
 from sim.camera import convert_camera_pose, mujoco_camera_intrinsics
 

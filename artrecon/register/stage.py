@@ -33,7 +33,7 @@ import pycolmap
 
 from artrecon.confidence import check_registration_agreement, registration_agreement
 from artrecon.errors import InputError, ReconstructionError
-from artrecon.io import (
+from artrecon.files import (
     check_output_dir,
     make_work_dir,
     publish_dir,
