@@ -696,8 +696,12 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
     pair = intrinsics if isinstance(intrinsics, (tuple, list)) and len(intrinsics) == 2 \
         else (intrinsics, intrinsics)
     poses_pair = poses if isinstance(poses, (tuple, list)) else (poses, poses)
-    set_a, intr_a, poses_a = _resolve_inputs(images_a, pair[0], poses_pair[0], "A")
-    set_b, intr_b, poses_b = _resolve_inputs(images_b, pair[1], poses_pair[1], "B")
+    # every image is decoded once here (checked, thumbnails): A's and B's side by side (A's
+    # error, if both are bad)
+    with workers.single_threaded():
+        (set_a, intr_a, poses_a), (set_b, intr_b, poses_b) = workers.side_by_side(
+            lambda: _resolve_inputs(images_a, pair[0], poses_pair[0], "A"),
+            lambda: _resolve_inputs(images_b, pair[1], poses_pair[1], "B"))
     check_distinct(set_a, set_b)
     if out_dir is not None:
         out_dir = check_output_dir(out_dir, [set_a.root, set_a.image_dir, set_b.root,
