@@ -241,6 +241,15 @@ def servo_gains(model: mujoco.MjModel, actuators) -> tuple[np.ndarray, np.ndarra
     return kp, kv
 
 
+def _as_slice(index: np.ndarray):
+    """``index`` as a slice when it is a contiguous ascending run (numpy then takes a view),
+    else unchanged."""
+    index = np.asarray(index)
+    if len(index) and np.array_equal(index, np.arange(index[0], index[0] + len(index))):
+        return slice(int(index[0]), int(index[0]) + len(index))
+    return index
+
+
 class _Arm:
     """Moves the arm in MuJoCo with its position servos and watches what it touches.
 
@@ -273,6 +282,14 @@ class _Arm:
             mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in kin.joint_names]]
         #: scratch data for the inverse dynamics of the reference
         self._inverse = mujoco.MjData(model)
+        # views of the arrays touched at every physics step, and the joints' addresses as
+        # slices where they are contiguous (a move is ~250 steps; numpy's per-call overhead on
+        # these 6-vectors was most of its CPU besides mj_step and mj_inverse)
+        self._iq, self._iv, self._ia = (_as_slice(i) for i in (self.qidx, self.vidx, self.aidx))
+        self._qpos, self._qvel, self._ctrl = data.qpos, data.qvel, data.ctrl
+        inv = self._inverse
+        self._inv_qpos, self._inv_qvel, self._inv_qacc = inv.qpos, inv.qvel, inv.qacc
+        self._inv_frc, self._inv_grav = inv.qfrc_inverse, inv.qfrc_gravcomp
         #: the joint values the arm was last sent to (None: wherever it stands)
         self.target: np.ndarray | None = None
         #: largest distance (rad or m) of each joint from the planned line, over all moves
@@ -281,17 +298,17 @@ class _Arm:
     def command(self, q_ref, v_ref=None, a_ref=None) -> np.ndarray:
         """Servo targets that make the arm follow ``q_ref`` with speed ``v_ref`` and
         acceleration ``a_ref`` (default 0: hold ``q_ref``) : (n,) float."""
-        inv = self._inverse
+        iv = self._iv
         v_ref = np.zeros(len(self.qidx)) if v_ref is None else v_ref
-        inv.qpos[:] = self.data.qpos
-        inv.qpos[self.qidx] = q_ref
-        inv.qvel[:] = 0.0
-        inv.qvel[self.vidx] = v_ref
-        inv.qacc[:] = 0.0
+        np.copyto(self._inv_qpos, self._qpos)
+        self._inv_qpos[self._iq] = q_ref
+        self._inv_qvel.fill(0.0)
+        self._inv_qvel[iv] = v_ref
+        self._inv_qacc.fill(0.0)
         if a_ref is not None:
-            inv.qacc[self.vidx] = a_ref
-        mujoco.mj_inverse(self.model, inv)
-        tau = inv.qfrc_inverse[self.vidx] - self.actuator_gravcomp * inv.qfrc_gravcomp[self.vidx]
+            self._inv_qacc[iv] = a_ref
+        mujoco.mj_inverse(self.model, self._inverse)
+        tau = self._inv_frc[iv] - self.actuator_gravcomp * self._inv_grav[iv]
         return q_ref + (tau + self.kv * v_ref) / self.kp
 
     def place(self, q):
@@ -323,17 +340,19 @@ class _Arm:
         duration = steps * dt
         hits: set[str] = set()
         deviation = np.zeros(len(self.qidx))
+        qpos, ctrl, iq, ia = self._qpos, self._ctrl, self._iq, self._ia
         for i in range(1, steps + 1):
             s, ds, dds = min_jerk(i / steps)
             q_ref = q0 + s * dq
-            d.ctrl[self.aidx] = self.command(q_ref, ds / duration * dq, dds / duration ** 2 * dq)
+            ctrl[ia] = self.command(q_ref, ds / duration * dq, dds / duration ** 2 * dq)
             self._step(hits)
-            deviation = np.maximum(deviation, np.abs(d.qpos[self.qidx] - q_ref))
+            np.maximum(deviation, np.abs(qpos[iq] - q_ref), out=deviation)
         self.target = q.copy()
-        d.ctrl[self.aidx] = self.command(q)
+        ctrl[ia] = self.command(q)
+        qvel, iv = self._qvel, self._iv
         for _ in range(int(SETTLE_MAX_TIME / dt)):
             self._step(hits)
-            if np.max(np.abs(d.qvel[self.vidx])) < SETTLE_SPEED:
+            if np.max(np.abs(qvel[iv])) < SETTLE_SPEED:
                 break
         mujoco.mj_forward(m, d)
         hits.update(views.arm_collisions(m, d, self.links))
