@@ -120,13 +120,15 @@ def bench_render(name: str, frames: int, config: str = "a") -> dict:
     return {"frames": len(chosen), "width": w, "height": h, "build_ms": 1e3 * build, **ms}
 
 
-def bench_capture(name: str, n_views: int, config: str = "a") -> dict:
-    """One full capture: wall and CPU seconds, and its own split when it reports one."""
+def bench_capture(name: str, n_views: int, config: str = "a", keep: Path | None = None) -> dict:
+    """One full capture: wall and CPU seconds, and its own split when it reports one. With
+    ``keep``, the image set stays in ``keep/SCENE_CONFIG`` (to compare two versions' files)."""
     with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "set" if keep is None else Path(keep) / f"{name}_{config}"
         t0, c0 = time.perf_counter(), _cpu()
-        res = capture.capture(name, config, Path(tmp) / "set", n_views=n_views, progress=False)
+        res = capture.capture(name, config, out, n_views=n_views, progress=False)
         wall, cpu = time.perf_counter() - t0, _cpu() - c0
-        rings = json.loads((Path(tmp) / "set" / "capture.json").read_text())["rings"]
+        rings = json.loads((out / "capture.json").read_text())["rings"]
     t = res.timings
     n = max(1, res.n_captured)
     split = ""
@@ -154,6 +156,7 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=12, help="views per render timing")
     p.add_argument("--config", default="a", help="object configuration to capture (a or b)")
     p.add_argument("--no-capture", action="store_true", help="render timings only")
+    p.add_argument("--keep", type=Path, help="keep the captured sets in this folder")
     args = p.parse_args()
     print(f"# code at {_commit()}, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} "
           "CPUs (CPU seconds are what counts; wall time grows with the load)")
@@ -161,7 +164,7 @@ def main() -> None:
         row = {"scene": name, "commit": _commit(),
                "render_ms": bench_render(name, args.frames, args.config)}
         if not args.no_capture:
-            row["capture"] = bench_capture(name, args.views, args.config)
+            row["capture"] = bench_capture(name, args.views, args.config, args.keep)
         print(json.dumps(row))
 
 
