@@ -143,11 +143,15 @@ class _Renderer(pyrender.renderer.Renderer):
     was.
     """
 
+    #: compile the scene's light counts into the colour shader (False: pyrender's uniform-bound
+    #: loops; the tests compare the two)
+    constant_light_loops = True
+
     def render(self, scene, flags, seg_node_map=None):
         if isinstance(self._program_cache, LambertShaderCache):
-            self._program_cache.light_counts = (len(scene.directional_light_nodes),
-                                                len(scene.spot_light_nodes),
-                                                len(scene.point_light_nodes))
+            self._program_cache.light_counts = (
+                (len(scene.directional_light_nodes), len(scene.spot_light_nodes),
+                 len(scene.point_light_nodes)) if self.constant_light_loops else None)
         return super().render(scene, flags, seg_node_map)
 
     def _read_main_framebuffer(self, scene, flags):
@@ -335,6 +339,10 @@ class MjRenderer:
     bg_color : (3,) float
         Background colour in [0, 1].
     """
+
+    #: hide the nodes outside the view frustum before drawing (:meth:`_cull`; False: draw all,
+    #: as the tests do to compare)
+    cull_offscreen = True
 
     def __init__(self, model: mujoco.MjModel, *, geom_labels=None, visible_groups=(0, 1, 2),
                  bg_color=(0.0, 0.0, 0.0)):
@@ -606,7 +614,11 @@ class MjRenderer:
         self.scene.set_pose(self._camera_node, T_gl)
         if self._headlight_node is not None:
             self.scene.set_pose(self._headlight_node, T_gl)
-        self._cull(K, T, width, height)
+        if self.cull_offscreen:
+            self._cull(K, T, width, height)
+        else:
+            for node in self.geom_nodes.values():
+                node.mesh.is_visible = True
         r = offscreen_renderer(width, height)
         color, _ = r.render(self.scene, flags=COLOUR_ONLY)
         out = RenderOutput(color=np.ascontiguousarray(color[:, :, :3]))
