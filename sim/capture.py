@@ -341,10 +341,15 @@ class _Arm:
         hits: set[str] = set()
         deviation = np.zeros(len(self.qidx))
         qpos, ctrl, iq, ia = self._qpos, self._ctrl, self._iq, self._ia
-        for i in range(1, steps + 1):
-            s, ds, dds = min_jerk(i / steps)
-            q_ref = q0 + s * dq
-            ctrl[ia] = self.command(q_ref, ds / duration * dq, dds / duration ** 2 * dq)
+        # the reference of every step at once: per element the same products and sums as one
+        # step at a time (q0 + s dq, ds / T dq, dds / T**2 dq)
+        s, ds, dds = (np.array(c) for c in zip(*(min_jerk(i / steps)
+                                                  for i in range(1, steps + 1)), strict=True))
+        q_refs = q0 + s[:, None] * dq
+        v_refs = (ds / duration)[:, None] * dq
+        a_refs = (dds / duration ** 2)[:, None] * dq
+        for q_ref, v_ref, a_ref in zip(q_refs, v_refs, a_refs, strict=True):
+            ctrl[ia] = self.command(q_ref, v_ref, a_ref)
             self._step(hits)
             np.maximum(deviation, np.abs(qpos[iq] - q_ref), out=deviation)
         self.target = q.copy()
