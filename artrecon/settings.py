@@ -86,6 +86,8 @@ RANGES: dict[str, Range | Choice] = {
     "sfm.first_octave": Range(-1, 3, "-1 upsamples the image 2x first"),
     "sfm.matching": Choice(("auto", "exhaustive", "sequential")),
     "sfm.pose_neighbours": Range(1, 1000, "images matched with each image"),
+    "sfm.pose_ba_refinements": Range(0, 100, "rounds of points-only bundle adjustment"),
+    "sfm.pose_verify_min_trials": Range(1, 100_000, "RANSAC trials, at least"),
     "sfm.pose_max_angle_deg": Range(0, 180, "degrees", **_OPEN),
     "sfm.sequential_window": Range(1, 1000, "neighbours in name order"),
     "sfm.retrieval_neighbours": Range(0, 1000, "0: no retrieval pairs"),

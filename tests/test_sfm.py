@@ -215,3 +215,46 @@ def test_opencv_keypoints_are_not_shifted(tmp_path):
     offsets = np.vstack(offsets)
     assert len(offsets) > 50
     np.testing.assert_allclose(np.median(offsets, axis=0), 0.0, atol=0.05)
+
+
+def test_known_camera_database_is_what_colmaps_extractor_writes(tmp_path):
+    """With known intrinsics the database is written directly (no image read by COLMAP): the
+    same camera, rig, frames and images, with the same ids, as COLMAP's extractor writes."""
+    import pycolmap
+
+    size = (200, 150)
+    for i in range(5):
+        cv2.imwrite(str(tmp_path / f"img_{i}.png"), _blobs(size, i))
+    s = io.load_image_folder(tmp_path)
+    intr = io.Intrinsics(np.array([[180.123456789, 0, 99.5], [0, 181.5, 74.25], [0, 0, 1]]),
+                         size)
+    dbs = {}
+    for extractor in ("opencv", "colmap"):
+        (tmp_path / extractor).mkdir()
+        dbs[extractor] = tmp_path / extractor / "database.db"
+        sfm.extract(s, dbs[extractor], intr, sfm.SfMConfig(extractor=extractor))
+
+    def content(path):
+        with pycolmap.Database.open(path) as db:
+            cams = [(c.camera_id, c.model.name, c.width, c.height, list(c.params),
+                     c.has_prior_focal_length) for c in db.read_all_cameras()]
+            return (cams, [str(r) for r in db.read_all_rigs()],
+                    [str(f) for f in db.read_all_frames()],
+                    [(m.image_id, m.name, m.camera_id, m.frame_id) for m in db.read_all_images()],
+                    [len(db.read_keypoints(m.image_id)) > 0 for m in db.read_all_images()])
+
+    direct, colmap = content(dbs["opencv"]), content(dbs["colmap"])
+    assert direct[:4] == colmap[:4]
+    assert direct[0][0][1] == "PINHOLE" and len(direct[3]) == 5 and all(direct[4])
+
+
+def test_keypoint_rows_in_colmaps_convention():
+    """OpenCV keypoints -> COLMAP rows: pixel centres moved to (0.5, 0.5), coordinates and scale
+    back in the full image when it was shrunk by ``factor``, the affine shape turned by the
+    orientation (OpenCV's angle in degrees)."""
+    kps = [cv2.KeyPoint(10.0, 20.0, 4.0, 0.0), cv2.KeyPoint(3.0, 5.0, 8.0, 90.0)]
+    rows = sfm._colmap_keypoints(kps, 0.5)
+    assert rows.dtype == np.float32 and rows.shape == (2, 6)
+    np.testing.assert_allclose(rows[0], [21, 41, 4, 0, 0, 4], atol=1e-5)
+    np.testing.assert_allclose(rows[1], [7, 11, 0, -8, 8, 0], atol=1e-5)
+    assert sfm._colmap_keypoints((), 1.0).shape == (0, 6)
