@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from functools import partial
 
 import cv2
 import numpy as np
@@ -42,7 +43,9 @@ from scipy.ndimage import map_coordinates, minimum_filter
 from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
+from artrecon.errors import ReconstructionError
 from artrecon.potts import potts_expansion
+from artrecon.workers import side_by_side
 
 log = logging.getLogger(__name__)
 
@@ -130,8 +133,9 @@ def views_from_sfm(sfm) -> list[CameraView]:
         # the grey image as OpenCV reads it (its own conversion), not converted from ``img``
         grey = cv2.imread(str(sfm.image_dir / name), cv2.IMREAD_GRAYSCALE)
         if img is None or grey is None:
-            log.warning("assign: cannot read %s; it gives no evidence", name)
-            continue
+            # a missing view would silently weaken the labels (and change the tree)
+            raise ReconstructionError(f"cannot read image {sfm.image_dir / name} of the "
+                                      "reconstruction; put it back or reconstruct again")
         views.append(CameraView(sfm.intrinsics(name), np.linalg.inv(poses[name]),
                                 grey.astype(np.float32), img[:, :, ::-1].copy()))
     return views
@@ -374,13 +378,15 @@ def assign_dense_to_links(dense_a, dense_b, points_a, points_b, segmentation, *,
     if views_a and views_b:
         occ_a = dense_a.points if occluders_a is None else occluders_a
         occ_b = dense_b.points if occluders_b is None else occluders_b
-        surf_a = _Surface(views_a, occ_a, config.zbuffer_cell)
-        surf_b = _Surface(views_b, occ_b, config.zbuffer_cell)
-    ev_a = _Evidence(dense_a.points, dense_a.normals, dense_b.points, Ts, rms, points_a, labels,
-                     surf_a, surf_b, config)
-    ev_b = _Evidence(dense_b.points, dense_b.normals, dense_a.points, inv,
-                     rms / segmentation.scale, points_b, labels, surf_b, surf_a, config)
+        surf_a, surf_b = side_by_side(lambda: _Surface(views_a, occ_a, config.zbuffer_cell),
+                                      lambda: _Surface(views_b, occ_b, config.zbuffer_cell))
+    # A's and B's cues and labels are independent within a pass: side by side
+    ev_a, ev_b = side_by_side(
+        lambda: _Evidence(dense_a.points, dense_a.normals, dense_b.points, Ts, rms, points_a,
+                          labels, surf_a, surf_b, config),
+        lambda: _Evidence(dense_b.points, dense_b.normals, dense_a.points, inv,
+                          rms / segmentation.scale, points_b, labels, surf_b, surf_a, config))
     lab_a = lab_b = None
     for _ in range(config.passes):
-        lab_a, lab_b = ev_a.label(lab_b), ev_b.label(lab_a)
+        lab_a, lab_b = side_by_side(partial(ev_a.label, lab_b), partial(ev_b.label, lab_a))
     return lab_a, lab_b

@@ -22,6 +22,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
 import shutil
 import time
 from dataclasses import asdict, dataclass, field
@@ -35,15 +36,8 @@ from threadpoolctl import threadpool_limits
 from artrecon._version import __version__
 from artrecon.dense import DenseConfig, DensePoints, RegionConfig, dense_points, object_region
 from artrecon.errors import InputError, ReconstructionError
-from artrecon.io import (
-    ImageSet,
-    Intrinsics,
-    load_cameras_json,
-    read_json,
-    read_ply,
-    write_json_atomic,
-    write_ply,
-)
+from artrecon.files import read_json, read_ply, write_json_atomic, write_ply
+from artrecon.io import ImageSet, Intrinsics, load_cameras_json
 from artrecon.sfm import SfMConfig, SfMResult, layout_error, run_sfm
 
 log = logging.getLogger(__name__)
@@ -238,8 +232,12 @@ def _reconstruct_configuration(image_set, out_dir: Path, intrinsics, poses, sfm_
     np.savez(out_dir / "region.npz", object_ids=ids[on_object], background_ids=bg)
     record = {
         "format": FORMAT, "configuration": which, "inputs_digest": digest,
-        "artrecon_version": __version__, "seed": seed, "images": str(image_set.root),
-        "image_dir": str(image_set.image_dir), "num_images": len(image_set.names),
+        "artrecon_version": __version__, "seed": seed,
+        # absolute: the later stages read the images again (dense labels, free space), and a
+        # path relative to the working directory of the run that wrote it pointed elsewhere,
+        # or nowhere, from another one
+        "images": os.path.abspath(image_set.root),
+        "image_dir": os.path.abspath(image_set.image_dir), "num_images": len(image_set.names),
         "cameras": "given poses (held fixed)" if poses is not None else "SfM from the images",
         "registered_images": rec.num_reg_images(), "sparse_points": rec.num_points3D(),
         "dense_points": len(dense), "pose_agreement": sfm.pose_agreement,
@@ -269,8 +267,13 @@ def load_configuration(folder: str | Path) -> Configuration:
     if record.get("format") != FORMAT:
         raise ReconstructionError(f"{record_path}: format {record.get('format')!r}, this "
                                   f"artrecon reads {FORMAT!r}; reconstruct again")
+    image_dir = Path(record["image_dir"])
+    if not image_dir.is_dir():
+        raise ReconstructionError(f"{record_path}: its images were in {image_dir}, which is not a "
+                                  "folder now (moved or deleted?); the later stages read them "
+                                  "again: put them back or reconstruct again")
     rec = pycolmap.Reconstruction(str(folder / "sparse" / "0"))
-    sfm = SfMResult(rec, folder / "database.db", Path(record["image_dir"]),
+    sfm = SfMResult(rec, folder / "database.db", image_dir,
                     folder / "sparse" / "0", int(record["num_images"]),
                     record.get("timings", {}), record.get("pose_agreement"))
     points, normals, colours = read_ply(folder / "dense.ply")

@@ -86,13 +86,19 @@ def tracked_features(sfm, allowed: set | None = None
         for img in rec.images.values():
             if not img.has_pose:
                 continue
-            idx = [k for k, p in enumerate(img.points2D) if p.has_point3D()
-                   and (allowed is None or p.point3D_id in allowed)]
+            # the keypoints with a 3D point (ascending), without visiting every keypoint
+            points2D = img.points2D
+            idx, pids = [], []
+            for k in sorted(img.get_observation_point2D_idxs()):
+                pid = points2D[k].point3D_id
+                if allowed is None or pid in allowed:
+                    idx.append(k)
+                    pids.append(pid)
             if not idx:
                 continue
             desc = db.read_descriptors(img.image_id)
             desc = np.asarray(desc.data if hasattr(desc, "data") else desc)
-            pids = np.array([img.points2D[k].point3D_id for k in idx], dtype=np.int64)
+            pids = np.array(pids, dtype=np.int64)
             d = desc[idx].astype(np.float32)
             d /= np.linalg.norm(d, axis=1, keepdims=True) + 1e-9
             out[img.name] = (pids, d)

@@ -174,16 +174,34 @@ def _stack(views, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.stack(cols), np.stack(oks)
 
 
+def nanmedian0(x: np.ndarray) -> np.ndarray:
+    """``np.nanmedian(x, axis=0)``, the same figures bit for bit (the mean of the two middle
+    values in ``x``'s own float type; NaN where a column has no value), without numpy's masked
+    array route for short axes (about 20 times slower on the mosaic's views x cells)."""
+    x = np.asarray(x)
+    n = x.shape[0]
+    if n == 0:
+        return np.full(x.shape[1:], np.nan, x.dtype)
+    last = np.moveaxis(x, 0, -1)
+    srt = np.sort(last, axis=-1)  # NaN sort last
+    cnt = np.sum(~np.isnan(last), axis=-1)
+    h = cnt // 2
+    low = np.where(cnt % 2 == 1, h, h - 1)
+    lo = np.take_along_axis(srt, np.maximum(low, 0)[..., None], -1)[..., 0]
+    hi = np.take_along_axis(srt, np.minimum(h, n - 1)[..., None], -1)[..., 0]
+    med = np.asarray((lo + hi) / x.dtype.type(2))
+    med[cnt == 0] = np.nan
+    return med
+
+
 def _median(cols: np.ndarray, oks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per place, the median colour over the views that see it, and their number."""
-    c = np.where(oks[..., None], cols, np.nan)
-    with np.errstate(all="ignore"):
-        import warnings
+    return nanmedian0(np.where(oks[..., None], cols, np.nan)), oks.sum(0)
 
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            med = np.nanmedian(c, axis=0)
-    return med, oks.sum(0)
+
+#: Offsets of the height search whose samples the views project together (memory: views x
+#: offsets x samples x 3 float32, 46 MB for 121 views, 8 offsets, 4000 samples).
+_OFFSETS_AT_ONCE = 8
 
 
 def _refine_height(views, mosaic: _Mosaic, config: FreeSpaceConfig, cam_dist: float,
@@ -194,26 +212,31 @@ def _refine_height(views, mosaic: _Mosaic, config: FreeSpaceConfig, cam_dist: fl
     ij = rng.uniform([0, 0], [w - 1, h - 1], (config.height_samples, 2))
     base = mosaic.origin + ij[:, :1] * mosaic.cell * mosaic.e1 + ij[:, 1:] * mosaic.cell * mosaic.e2
 
-    def spread(offset: float) -> float:
-        cols, oks = _stack(views, base + offset * mosaic.plane.normal)
-        med, cnt = _median(cols, oks)
-        dev = np.where(oks, np.abs(cols - med[None]).sum(-1), np.nan)
-        with np.errstate(all="ignore"):
-            import warnings
-
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                per = np.nanmedian(dev, axis=0)
-        per = per[cnt >= config.min_views]
-        return float(np.median(per)) if len(per) else np.inf
+    def spreads(offsets: np.ndarray) -> list[float]:
+        """Per offset, the median over the samples of the views' spread about their median
+        colour; the views project several offsets' samples at once (fewer, larger calls)."""
+        out = []
+        for first in range(0, len(offsets), _OFFSETS_AT_ONCE):
+            chunk = offsets[first:first + _OFFSETS_AT_ONCE]
+            P = base[None] + chunk[:, None, None] * mosaic.plane.normal
+            cols, oks = _stack(views, P.reshape(-1, 3))
+            cols = cols.reshape(len(views), len(chunk), len(base), 3)
+            oks = oks.reshape(len(views), len(chunk), len(base))
+            for m in range(len(chunk)):
+                med, cnt = _median(cols[:, m], oks[:, m])
+                per = nanmedian0(np.where(oks[:, m], np.abs(cols[:, m] - med[None]).sum(-1),
+                                          np.nan))
+                per = per[cnt >= config.min_views]
+                out.append(float(np.median(per)) if len(per) else np.inf)
+        return out
 
     reach = config.height_search * cam_dist
     step = mosaic.cell  # one pixel's footprint: the parallax that matters
     coarse = np.arange(-reach, reach + 0.5 * step, step)
-    s = [spread(o) for o in coarse]
+    s = spreads(coarse)
     best = float(coarse[int(np.argmin(s))])
     fine = best + np.linspace(-step, step, 9)
-    s = [spread(o) for o in fine]
+    s = spreads(fine)
     return float(fine[int(np.argmin(s))])
 
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from artrecon._version import __version__
 from artrecon.errors import InputError
-from artrecon.io import write_text_atomic
+from artrecon.files import write_text_atomic
 from artrecon.procrustes import Similarity
 
 log = logging.getLogger(__name__)

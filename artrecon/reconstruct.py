@@ -67,17 +67,14 @@ from artrecon.features import (
     point_descriptors,
     tracked_features,
 )
+from artrecon.files import check_output_dir, make_work_dir, publish_dir, write_ply
 from artrecon.freespace import FreeSpaceConfig, seen_through_table, support_plane
 from artrecon.io import (
     Intrinsics,
     check_distinct,
-    check_output_dir,
     load_cameras_json,
     load_image_folder,
-    make_work_dir,
     parse_intrinsics,
-    publish_dir,
-    write_ply,
 )
 from artrecon.joints import JointConfig, KinematicTree, build_kinematic_tree, estimate_joints
 from artrecon.model import ArticulatedModel, Link
@@ -488,6 +485,20 @@ def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndar
     WeakEvidenceError
         A joint's evidence is too weak for its axis (artrecon.confidence).
     """
+    # One BLAS thread: these steps multiply many small matrices ((n, 3) points by a rotation),
+    # for which a second BLAS thread only adds its start-up and spinning (40 ms instead of 1 ms
+    # of CPU per product of 150k points on this 2-core machine); the results are the same. The
+    # two configurations' work runs side by side instead.
+    with workers.single_threaded():
+        return _articulate(points_a, points_b, background_a, background_b, dense_a, dense_b,
+                           config, seed, views_a=views_a, views_b=views_b,
+                           occluders_a=occluders_a, occluders_b=occluders_b,
+                           candidates=candidates)
+
+
+def _articulate(points_a, points_b, background_a, background_b, dense_a, dense_b,
+                config: ReconstructConfig, seed: int, *, views_a, views_b, occluders_a,
+                occluders_b, candidates) -> Articulation:
     timings: dict[str, float] = {}
     t = time.perf_counter()
     # nothing moved, or the whole object did: said first and plainly (NoMotionError, ...)
@@ -517,8 +528,9 @@ def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndar
     timings["segment"] = time.perf_counter() - t
     t = time.perf_counter()
     # dense points the table is seen through (fattened edges of thin links) join no link
-    drop_a = table_free_space(dense_a.points, views_a, occluders_a, config, seed)
-    drop_b = table_free_space(dense_b.points, views_b, occluders_b, config, seed)
+    drop_a, drop_b = workers.side_by_side(
+        lambda: table_free_space(dense_a.points, views_a, occluders_a, config, seed),
+        lambda: table_free_space(dense_b.points, views_b, occluders_b, config, seed))
     lab_a, lab_b = assign_dense_to_links(
         dense_a.subset(~drop_a), dense_b.subset(~drop_b), points_a, points_b, seg,
         views_a=views_a, views_b=views_b, occluders_a=occluders_a, occluders_b=occluders_b,
@@ -681,8 +693,12 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
     pair = intrinsics if isinstance(intrinsics, (tuple, list)) and len(intrinsics) == 2 \
         else (intrinsics, intrinsics)
     poses_pair = poses if isinstance(poses, (tuple, list)) else (poses, poses)
-    set_a, intr_a, poses_a = _resolve_inputs(images_a, pair[0], poses_pair[0], "A")
-    set_b, intr_b, poses_b = _resolve_inputs(images_b, pair[1], poses_pair[1], "B")
+    # every image is decoded once here (checked, thumbnails): A's and B's side by side (A's
+    # error, if both are bad)
+    with workers.single_threaded():
+        (set_a, intr_a, poses_a), (set_b, intr_b, poses_b) = workers.side_by_side(
+            lambda: _resolve_inputs(images_a, pair[0], poses_pair[0], "A"),
+            lambda: _resolve_inputs(images_b, pair[1], poses_pair[1], "B"))
     check_distinct(set_a, set_b)
     if out_dir is not None:
         out_dir = check_output_dir(out_dir, [set_a.root, set_a.image_dir, set_b.root,
@@ -767,6 +783,17 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     occluders = {k: c.occluders for k, c in confs.items()}
     regions = {k: c.object_ids for k, c in confs.items()}
     backgrounds = {k: c.background_ids for k, c in confs.items()}
+    with workers.single_threaded():
+        return _after_configurations(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work, seed,
+                                     config, sfms, denses, occluders, regions, backgrounds,
+                                     timings)
+
+
+def _after_configurations(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work: Path, seed: int,
+                          config: ReconstructConfig, sfms: dict, denses: dict, occluders: dict,
+                          regions: dict, backgrounds: dict, timings: dict) -> ArticulatedModel:
+    """:func:`_run` from the two configurations on (one BLAS and OpenCV thread per task, A's
+    and B's own work side by side)."""
     t = time.perf_counter()
     feats = {k: tracked_features(sfms[k], regions[k] | backgrounds[k]) for k in ("a", "b")}
     matches = match_configurations(sfms["a"], sfms["b"], config.match, seed,
@@ -782,10 +809,12 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
         keep = np.isin(desc.ids, list(regions[key])) & ~np.isin(desc.ids, matched)
         candidates.append(PointDescriptors(desc.ids[keep], desc.xyz[keep], desc.desc[keep]))
     timings["match"] = time.perf_counter() - t
+    views_a, views_b = workers.side_by_side(lambda: views_from_sfm(sfms["a"]),
+                                            lambda: views_from_sfm(sfms["b"]))
     try:
         art = articulate(matches.points_a, matches.points_b, background.points_a,
                          background.points_b, denses["a"], denses["b"], config, seed,
-                         views_a=views_from_sfm(sfms["a"]), views_b=views_from_sfm(sfms["b"]),
+                         views_a=views_a, views_b=views_b,
                          occluders_a=occluders["a"], occluders_b=occluders["b"],
                          candidates=tuple(candidates))
     except (DegenerateError, WeakEvidenceError) as exc:

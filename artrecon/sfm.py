@@ -44,7 +44,8 @@ import numpy as np
 import pycolmap
 
 from artrecon.errors import PoseMismatchError, ReconstructionError
-from artrecon.io import ImageSet, Intrinsics, write_json_atomic
+from artrecon.files import write_json_atomic
+from artrecon.io import ImageSet, Intrinsics
 
 log = logging.getLogger(__name__)
 

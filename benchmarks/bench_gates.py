@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 import sim  # noqa: F401
-from artrecon.io import write_json_atomic, write_text_atomic
+from artrecon.files import write_json_atomic, write_text_atomic
 from sim import evaluate
 from sim.evaluate import gates, sweep
 from sim.scene import list_scenes

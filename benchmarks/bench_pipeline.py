@@ -1,93 +1,141 @@
-"""Time of the whole method per scene, per stage, as the number of views grows.
+"""Time of the main job per scene and per stage, against its floor (issue 20).
 
-    python benchmarks/bench_pipeline.py [SCENE ...] [--views 18 36 72] [--out DIR] [--no-manipulate]
+    python benchmarks/bench_pipeline.py [SCENE ...] [--views 36] [--out DIR] [--no-manipulate]
+                                        [--photo-route SCENE]
 
-For each scene and each number of views *per full capture ring* (the capture has three full rings
-at 20/40/60 deg and a shorter top ring, so 18/36/72 per ring are about 61/121/242 images per
-configuration), runs ``sim.evaluate.evaluate_scene`` (capture both configurations, SfM, dense,
-matching, segmentation and joints, registration, manipulation, scoring) and prints the seconds of
-each stage, each stage's share of the whole, and the ratio of the whole run to SIFT extraction
-alone on the same two image sets (COLMAP's extractor with the reconstruction's settings: the
-floor no run of this method goes under, since every image must be read and described once).
+For each scene (default: every bundled scene) runs ``sim.evaluate.evaluate_scene`` at the main
+job's default configuration (36 views per ring, the arm's FK poses, seed 0, manipulation on),
+exactly what ``python -m sim.evaluate`` runs, and prints:
 
-Stage results are cached in ``--out`` (default ``runs/bench``); the times printed for a cached
-stage are those measured when it was built, so a re-run prints the same table quickly. Delete the
-folder for fresh timings. Timings depend on the machine's load: no asserts.
+- the scene's wall time and each stage's seconds (``timings_s``; the two captures run side by
+  side in two processes, and so do the two configurations' SfM and dense stages);
+- the floor, measured in the same run: rendering the images plus extracting their SIFT features
+  with the settings the reconstruction ships, per configuration (the capture's own ``render_s``
+  and the configuration stage's ``sfm_extract``), the larger of A and B, since the two run side by
+  side: no run of this method goes under it, every image must be made and described once;
+- the ratio of the scene's wall time to that floor (issue 20's goal: <= 2);
+- the process's CPU seconds (user + system, children included), which other load on the machine
+  inflates much less than the wall time.
+
+One JSON line per scene (``BENCH {...}``), then a table. ``--photo-route SCENE`` also times the
+route without poses on that scene's captures: the images alone, copied into plain folders (no
+``cameras.json``: focal length unknown, SfM from the images), through ``artrecon.reconstruct``.
+
+By default every run starts from an empty stage cache (a temporary folder), so the times are
+fresh; ``--out DIR`` keeps the cache (a second run then reports the times of the cached stages as
+they were built). Timings depend on the machine's load: no asserts.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import resource
+import shutil
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import sim  # noqa: F401
+from artrecon.files import read_json
 from sim import evaluate
+from sim.scene import list_scenes
 
 
-def sift_only(set_dir: Path) -> float:
-    """Seconds of COLMAP SIFT extraction alone on one image set (the reconstruction's settings)."""
-    from artrecon.io import load_cameras_json, load_image_folder
-    from artrecon.sfm import SfMConfig, extract
+def _cpu_s() -> float:
+    """User + system CPU seconds of this process and of its finished children."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
 
-    iset = load_image_folder(set_dir)
-    intr = load_cameras_json(iset.cameras_file)[0] if iset.cameras_file else None
-    with tempfile.TemporaryDirectory(prefix="bench-sift-") as tmp:
-        t = time.perf_counter()
-        extract(iset, Path(tmp) / "database.db", intr, SfMConfig())
-        return time.perf_counter() - t
+
+def floor_of(result: dict) -> dict:
+    """Render and SIFT-extraction seconds per configuration, as this run measured them."""
+    out = {}
+    model_dir = Path(result["_model_dir"])
+    for c in ("a", "b"):
+        capture = read_json(Path(result["_sets"][c]) / "capture.json")
+        render = float(capture.get("timings", {}).get("render_s", float("nan")))
+        conf = read_json(model_dir / c / "configuration.json")
+        extract = float(conf.get("timings", {}).get("sfm_extract", float("nan")))
+        out[c] = {"render_s": render, "extract_s": extract}
+    out["floor_s"] = max(v["render_s"] + v["extract_s"] for v in (out["a"], out["b"]))
+    return out
+
+
+def photo_route(result: dict, work: Path) -> dict:
+    """Seconds of ``artrecon.reconstruct`` on the scene's images alone (no camera file)."""
+    from artrecon import reconstruct
+
+    plain = {}
+    for c in ("a", "b"):
+        plain[c] = work / f"plain_{c}"
+        shutil.copytree(Path(result["_sets"][c]) / "images", plain[c])
+    t, cpu = time.perf_counter(), _cpu_s()
+    model = reconstruct(plain["a"], plain["b"], out_dir=work / "photo_model", progress=False)
+    return {"wall_s": time.perf_counter() - t, "cpu_s": _cpu_s() - cpu,
+            "links": len(model.links), "joints": len(model.joints),
+            "focal_px": (model.metadata.get("intrinsics") or {}).get("fx")}
 
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("scenes", nargs="*", default=["pliers"])
-    p.add_argument("--views", type=int, nargs="+", default=[18, 36, 72],
-                   help="views per full capture ring (default 18 36 72)")
-    p.add_argument("--out", type=Path, default=Path("runs/bench"))
+    p.add_argument("scenes", nargs="*", default=None, help="default: every bundled scene")
+    p.add_argument("--views", type=int, default=evaluate.EvalConfig().views,
+                   help="views per full capture ring (default: the main job's)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="keep the stage cache here (default: a fresh temporary folder)")
     p.add_argument("--no-manipulate", action="store_true")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--photo-route", metavar="SCENE",
+                   help="also time the route without poses on this scene's images")
     args = p.parse_args()
+    names = args.scenes or list_scenes()
+    tmp = tempfile.TemporaryDirectory(prefix="bench-pipeline-")
+    out = args.out or Path(tmp.name)
+    ev = evaluate.EvalConfig(views=args.views, seed=args.seed,
+                             manipulate=not args.no_manipulate, progress=False)
     rows = []
-    for name in args.scenes:
-        for n in args.views:
-            ev = evaluate.EvalConfig(views=n, seed=args.seed, manipulate=not args.no_manipulate,
-                                     progress=False)
-            t = time.perf_counter()
-            r = evaluate.evaluate_scene(name, ev, args.out / f"views{n}")
-            wall = time.perf_counter() - t
-            if r["error"]:
-                print(f"{name} @ {n} views/ring: FAILED {r['error']}", file=sys.stderr)
-            ts = {k: v for k, v in r["timings_s"].items() if v is not None}
-            total = sum(ts.values())
-            n_img = sum((r.get(f"capture_{c}") or {}).get("n_captured", 0) for c in "ab")
-            sift = (sum(sift_only(Path(d)) for d in r["_sets"].values()) if "_sets" in r
-                    else None)
-            rows.append((name, n, n_img, ts, total, wall, sift, r["cached_stages"]))
-            print(f"\n{name}: {n} views per ring, {n_img} images in all; stage sum {total:.1f} s"
-                  f" (this run's wall time {wall:.1f} s"
-                  f"{', cached: ' + ', '.join(r['cached_stages']) if r['cached_stages'] else ''})")
-            for k in evaluate.STAGES:
-                if k in ts:
-                    print(f"  {k:22s} {ts[k]:8.1f} s  {100 * ts[k] / total:5.1f} %")
-            if sift:
-                print(f"  SIFT extraction alone (both sets): {sift:.1f} s; whole run / SIFT = "
-                      f"{total / sift:.1f}; reconstruction (sfm..assign) / SIFT = "
-                      f"{sum(ts.get(k, 0) for k in evaluate.STAGES[2:7]) / sift:.1f}")
-    print("\nscene   views/ring  images  total s  " + "  ".join(f"{k[:10]:>10s}"
-                                                             for k in evaluate.STAGES)
-          + "  whole/SIFT")
-    for name, n, n_img, ts, total, _, sift, _ in rows:
-        print(f"{name:8s}{n:10d}  {n_img:6d}  {total:7.1f}  "
-              + "  ".join(f"{ts.get(k, float('nan')):10.1f}" for k in evaluate.STAGES)
-              + (f"  {total / sift:10.1f}" if sift else "         n/a"))
-    for name in args.scenes:
-        mine = [r for r in rows if r[0] == name]
-        for (_, n0, _, _, t0, *_), (_, n1, _, _, t1, *_) in zip(mine, mine[1:], strict=False):
-            print(f"{name}: {n0} -> {n1} views per ring: total x{t1 / t0:.2f}")
+    try:
+        for name in names:
+            t, cpu = time.perf_counter(), _cpu_s()
+            r = evaluate.evaluate_scene(name, ev, out)
+            wall, cpu = time.perf_counter() - t, _cpu_s() - cpu
+            row = {"scene": name, "views_per_ring": args.views, "wall_s": round(wall, 1),
+                   "cpu_s": round(cpu, 1), "passed": r.get("passed"),
+                   "error": r.get("error"), "cached": r.get("cached_stages"),
+                   "stages_s": {k: round(v, 1) for k, v in r["timings_s"].items()
+                                if v is not None}}
+            if not r.get("error"):
+                f = floor_of(r)
+                row.update(floor_s=round(f["floor_s"], 1), floor=f,
+                           ratio=round(wall / f["floor_s"], 2))
+                if args.photo_route == name:
+                    row["photo_route"] = photo_route(r, Path(tempfile.mkdtemp(dir=out)))
+            rows.append(row)
+            print("BENCH " + json.dumps(row), flush=True)
+    finally:
+        tmp.cleanup()
+    stages = [k for k in evaluate.STAGES if any(k in r["stages_s"] for r in rows)]
+    print("\nscene          wall s  cpu s  floor s  wall/floor  " + "  ".join(
+        f"{k[:10]:>10s}" for k in stages) + "  verdict")
+    for r in rows:
+        print(f"{r['scene']:14s}{r['wall_s']:7.1f}{r['cpu_s']:7.1f}"
+              f"{r.get('floor_s', float('nan')):9.1f}{r.get('ratio', float('nan')):12.2f}  "
+              + "  ".join(f"{r['stages_s'].get(k, float('nan')):10.1f}" for k in stages)
+              + ("  PASS" if r["passed"] else f"  FAIL{' (error)' if r['error'] else ''}"))
+    walls = sorted(r["wall_s"] for r in rows)
+    if walls:
+        print(f"\nmedian wall {walls[len(walls) // 2]:.1f} s, max {walls[-1]:.1f} s over "
+              f"{len(walls)} scene(s)")
+    for r in rows:
+        if "photo_route" in r:
+            pr = r["photo_route"]
+            print(f"photo route ({r['scene']}, images alone): {pr['wall_s']:.1f} s wall, "
+                  f"{pr['cpu_s']:.1f} s CPU, {pr['links']} links, {pr['joints']} joint(s)")
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(main())

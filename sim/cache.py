@@ -31,7 +31,7 @@ import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from artrecon.io import make_work_dir, write_bytes_atomic, write_json_atomic  # noqa: F401
+from artrecon.files import make_work_dir, write_json_atomic  # noqa: F401 (cache.write_json_atomic)
 
 log = logging.getLogger(__name__)
 

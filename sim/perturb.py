@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from artrecon.io import read_ply
+from artrecon.files import read_ply
 from sim.scene import Scene
 
 #: Neutral values: a perturbation at these does nothing.

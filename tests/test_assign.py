@@ -261,3 +261,22 @@ def test_hypothesis_fits_only_on_its_own_link_once_the_other_side_is_labelled():
                        np.array([0, 1]), dst_labels=dst_labels, **kw)
     assert (whole == 0).all()  # a tie: both fit, the first link wins
     assert (own == 1).all()
+
+
+def test_an_unreadable_view_is_refused_not_skipped(tmp_path):
+    """A view whose image cannot be read stops the labelling with its name: skipped, it would
+    silently take that view's evidence away (and could change the kinematic tree)."""
+    import cv2
+
+    from artrecon.assign import views_from_sfm
+    from artrecon.errors import ReconstructionError
+
+    cv2.imwrite(str(tmp_path / "a.png"), np.full((H, W, 3), 128, np.uint8))
+    sfm = SimpleNamespace(image_dir=tmp_path,
+                          T_world_camera=lambda: {"a.png": np.eye(4), "b.png": np.eye(4)},
+                          intrinsics=lambda name: np.array([[F, 0, W / 2], [0, F, H / 2],
+                                                            [0, 0, 1.0]]))
+    with pytest.raises(ReconstructionError, match="b.png"):
+        views_from_sfm(sfm)
+    (tmp_path / "b.png").write_bytes((tmp_path / "a.png").read_bytes())
+    assert len(views_from_sfm(sfm)) == 2

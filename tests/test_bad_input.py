@@ -23,7 +23,7 @@ import pytest
 import render_fixture as rf
 from badinput import case_registry, refused, write_images
 
-from artrecon import io
+from artrecon import files, io
 from artrecon.cli import main
 from artrecon.errors import InputError, NoMotionError, ReconstructionError
 from artrecon.reconstruct import reconstruct
@@ -599,14 +599,14 @@ def test_killed_run_leaves_no_result_and_the_next_run_starts_clean(tmp_path):
 
 def test_work_dirs_of_live_runs_are_kept(tmp_path):
     out = tmp_path / "out"
-    mine = io.make_work_dir(out)
+    mine = files.make_work_dir(out)
     dead = tmp_path / ".out.tmp-999999999-abc"  # no such process
     dead.mkdir()
     (dead / "model.json").write_text("{half")
-    other = io.make_work_dir(out)  # a second run starting while the first is alive
+    other = files.make_work_dir(out)  # a second run starting while the first is alive
     assert mine.is_dir() and other.is_dir() and not dead.exists()
     assert (tmp_path / "unrelated.tmp-1").mkdir() is None
-    io.remove_stale_work_dirs(out)
+    files.remove_stale_work_dirs(out)
     assert (tmp_path / "unrelated.tmp-1").is_dir()
 
 
@@ -614,9 +614,9 @@ def test_publish_replaces_a_result_whole(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
     (out / "model.json").write_text("old")
-    work = io.make_work_dir(out)
+    work = files.make_work_dir(out)
     (work / "model.json").write_text("new")
-    io.publish_dir(work, out)
+    files.publish_dir(work, out)
     assert (out / "model.json").read_text() == "new"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
 

@@ -77,6 +77,24 @@ def test_image_set_layout_and_fk_poses(pliers_set):
     assert "object_joints" not in json.dumps(cams)
 
 
+def test_written_pngs_hold_the_arrays_exactly(tmp_path):
+    """The PNG writer (OpenCV, one row filter, RLE) is lossless and keeps RGB order, the 16 bits
+    of depth and the 8 bits of labels: PIL reads back exactly what was written."""
+    rng = np.random.default_rng(4)
+    colour = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    colour[:10] = (255, 0, 0)  # a red band: a channel swap would show
+    depth = rng.integers(0, 65536, (48, 64), dtype=np.uint16)
+    labels = rng.integers(0, 256, (48, 64), dtype=np.uint8)
+    items = [(colour, tmp_path / "c.png", "colour"), (depth, tmp_path / "d.png", "depth"),
+             (labels, tmp_path / "l.png", "labels")]
+    assert C._write_pngs(items) >= 0.0
+    for array, path, _ in items:
+        back = np.asarray(Image.open(path))
+        assert back.dtype == array.dtype
+        np.testing.assert_array_equal(back, array)
+    assert tuple(np.asarray(Image.open(tmp_path / "c.png"))[0, 0]) == (255, 0, 0)
+
+
 def test_depth_and_labels_agree_with_mujoco_ray_casts(pliers_set):
     """Back-projected depth lands on MuJoCo's surfaces within 1 mm; labels name the hit link."""
     _, out = pliers_set

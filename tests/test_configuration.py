@@ -71,6 +71,29 @@ def test_an_interrupted_folder_is_refused_by_name(tmp_path):
         load_configuration(tmp_path)
 
 
+def test_the_record_names_its_images_absolutely_and_a_lost_folder_is_refused(
+        stage_a, tmp_path, monkeypatch):
+    """A folder read from another working directory still finds its images (the record's path
+    was relative to the run's working directory once, and the labelling then went on without
+    the images' evidence); images gone since are named, not skipped."""
+    import shutil
+    from pathlib import Path
+
+    iset, *_, out, _ = stage_a
+    record = json.loads((out / "configuration.json").read_text())
+    assert Path(record["image_dir"]).is_absolute()
+    assert Path(record["image_dir"]) == iset.image_dir.absolute()
+    monkeypatch.chdir(tmp_path)
+    assert load_configuration(out).sfm.image_dir == iset.image_dir.absolute()
+    moved = tmp_path / "moved"
+    shutil.copytree(out, moved)
+    data = json.loads((moved / "configuration.json").read_text())
+    data["image_dir"] = str(tmp_path / "nowhere")
+    (moved / "configuration.json").write_text(json.dumps(data))
+    with pytest.raises(ReconstructionError, match="not a folder now"):
+        load_configuration(moved)
+
+
 def test_side_by_side_equals_one_after_the_other_and_folders_are_reused(
         rendered, reconstruction_poses, tmp_path):
     """jobs=2 (B in a second process: the shared run) and jobs=1 give the same model; a run

@@ -16,7 +16,7 @@ import pytest
 from badinput import REPO, tree
 from test_export import synthetic_model
 
-from artrecon import io
+from artrecon import files
 
 
 def _default_sigint() -> None:
@@ -66,10 +66,10 @@ def _visible(t: dict) -> dict:
 def test_work_folders_get_the_usual_mode(tmp_path):
     """Output folders were published with mkdtemp's mode 0700."""
     out = tmp_path / "out"
-    work = io.make_work_dir(out)
+    work = files.make_work_dir(out)
     (work / "model.json").write_text("{}")
-    io.publish_dir(work, out)
-    assert out.stat().st_mode & 0o777 == 0o777 & ~io.umask()
+    files.publish_dir(work, out)
+    assert out.stat().st_mode & 0o777 == 0o777 & ~files.umask()
 
 
 def test_killed_export_leaves_the_old_twin_and_a_rerun_finishes(tmp_path):

@@ -127,3 +127,24 @@ def test_nothing_dropped_without_a_plane_or_colour(scene):
     plane = Plane(np.array([0.0, 0.0, 1.0]), np.zeros(3))
     assert not seen_through_table(X, grey, plane).any()
     assert not seen_through_table(X, views, plane, FreeSpaceConfig(enabled=False)).any()
+
+
+def test_nanmedian0_is_numpys_nanmedian_bit_for_bit():
+    """The mosaic's median over the views: numpy's nanmedian's figures (float32, the mean of
+    the two middle values, NaN for a place no view sees), ties and odd and even counts."""
+    import warnings
+
+    from artrecon.freespace import nanmedian0
+
+    rng = np.random.default_rng(3)
+    for shape in [(121, 500, 3), (8, 300), (1, 5), (2, 4)]:
+        x = rng.uniform(0, 255, shape).astype(np.float32)
+        x[rng.uniform(size=shape) < 0.1] = 77.25  # ties
+        x[rng.uniform(size=shape) < 0.4] = np.nan  # views that do not see the place
+        x[:, 0] = np.nan  # a place no view sees
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            expected = np.nanmedian(x, axis=0)
+        got = nanmedian0(x)
+        assert got.dtype == expected.dtype
+        assert np.array_equal(got, expected, equal_nan=True)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from artrecon.io import read_ply, write_ply
+from artrecon.files import read_ply, write_ply
 from sim import perturb
 from sim.perturb import Perturbation
 from sim.scene import load_scene

@@ -10,7 +10,7 @@ from render_fixture import align_to_truth, axis_errors
 from artrecon import features
 from artrecon.cli import main
 from artrecon.errors import InputError
-from artrecon.io import write_ply
+from artrecon.files import write_ply
 from artrecon.model import ArticulatedModel
 from artrecon.procrustes import Similarity
 from artrecon.reconstruct import merge_equivalent_links, reconstruct

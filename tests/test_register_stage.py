@@ -122,6 +122,19 @@ def test_bad_inputs_are_named(reconstruction_sfm, rendered, tmp_path):
         register(model_dir, camera_poses=rendered["a"].folder / "cameras.json",
                  images=[FreshImage(tmp_path / "missing.png", T_world_camera=np.eye(4))],
                  out_dir=False)
+    # --overwrite replaces an output whole: never the model's folder, an input's folder or a
+    # folder inside one of the model's configurations
+    poses = rendered["a"].folder / "cameras.json"
+    before = (model_dir / "model.json").read_bytes()
+    for out in (model_dir, rendered["a"].folder, model_dir / "a" / "registration"):
+        with pytest.raises(InputError, match="input"):
+            register(model_dir, camera_poses=poses, out_dir=out, overwrite=True)
+    assert (model_dir / "model.json").read_bytes() == before and poses.is_file()
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "mine.txt").write_text("keep")
+    with pytest.raises(InputError, match="registration.json"):
+        register(model_dir, camera_poses=poses, out_dir=tmp_path / "notes", overwrite=True)
+    assert (tmp_path / "notes" / "mine.txt").read_text() == "keep"
 
 
 def test_command(reconstruction_sfm, rendered, fresh_view, tmp_path, capsys):

@@ -306,3 +306,27 @@ def test_bad_arguments_are_clear_errors(scene):
       <worldbody><geom type="hfield" hfield="h"/></worldbody></mujoco>"""
     with pytest.raises(NotImplementedError, match="HFIELD"):
         R.MjRenderer(mujoco.MjModel.from_xml_string(hfield))
+
+
+def test_culling_and_constant_light_loops_leave_every_pixel_as_pyrender_draws_it(
+        scene, monkeypatch):
+    """The colour pass's speed-ups (sim.render: nodes outside the frustum hidden, light loops
+    with compile-time bounds, the colour pass read back without its depth) change no pixel of
+    the colour, depth or label images."""
+    model, data, renderer = scene
+    # close views (some geoms out of the frame, some behind the camera) and far ones
+    poses = list(views(3, seed=21, radius=(0.25, 0.35), target=(0.1, -0.1, 0.05)))
+    poses += list(views(2, seed=22))
+    fast = [renderer.render(data, K, T, W, H, depth=True, labels=True) for T in poses]
+    hidden = []
+    for T in poses[:3]:
+        renderer.render(data, K, T, W, H)
+        hidden.append(sum(not n.mesh.is_visible for n in renderer.geom_nodes.values()))
+    assert max(hidden) > 0, "no view culled anything: the test does not test culling"
+    monkeypatch.setattr(R.MjRenderer, "cull_offscreen", False)
+    monkeypatch.setattr(R._Renderer, "constant_light_loops", False)
+    for T, f in zip(poses, fast, strict=True):
+        plain = renderer.render(data, K, T, W, H, depth=True, labels=True)
+        np.testing.assert_array_equal(f.color, plain.color)
+        np.testing.assert_array_equal(f.depth, plain.depth)
+        np.testing.assert_array_equal(f.labels, plain.labels)

@@ -13,7 +13,7 @@ Rooms of the package (one job each)::
     formats.py    export_model: any of FORMATS
     cli.py        ``artrecon export MODEL --format mjcf|urdf|glb|ply --out PATH``
 
-Writes are whole or not at all (:func:`artrecon.io.write_files_atomic`): every file is first
+Writes are whole or not at all (:func:`artrecon.files.write_files_atomic`): every file is first
 written to a temporary file beside its final path; only when all files are written are they
 renamed into place (meshes first, the MJCF/URDF file last, so a model file never names a
 missing mesh). The library's writers replace existing files (``overwrite=True``); the command

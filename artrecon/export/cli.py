@@ -72,7 +72,7 @@ def check_export_target(model_path: str | Path, fmt: str, out: str | Path,
         ``out`` is the model file itself; a folder where a file format writes a file (or a file
         where PLY writes a folder); or an existing file without ``overwrite``. (Each file of
         the export is checked again just before it is put in place:
-        :class:`artrecon.io.StagedFiles`.)
+        :class:`artrecon.files.StagedFiles`.)
     """
     model_path, out = Path(model_path), Path(out)
     suffix = SUFFIX.get(fmt) or ""

@@ -9,8 +9,8 @@ import numpy as np
 import trimesh
 
 from artrecon.export.twin import ExportConfig, Twin, build_twin
+from artrecon.files import write_files_atomic
 from artrecon.geometry import pose, transform_points
-from artrecon.io import write_files_atomic
 from artrecon.model import ArticulatedModel
 
 __all__ = ["AXIS_RGBA", "AXIS_RADIUS_FRACTION", "glb_scene", "export_glb"]

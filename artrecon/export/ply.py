@@ -7,7 +7,7 @@ from pathlib import Path
 
 from artrecon.errors import InputError
 from artrecon.export.twin import ExportConfig, Twin, build_twin
-from artrecon.io import ply_bytes, write_files_atomic
+from artrecon.files import ply_bytes, write_files_atomic
 from artrecon.model import ArticulatedModel
 
 __all__ = ["export_ply"]

@@ -9,7 +9,7 @@ import numpy as np
 import trimesh
 
 from artrecon.export.twin import Twin
-from artrecon.io import write_files_atomic
+from artrecon.files import write_files_atomic
 
 __all__ = ["number", "numbers", "mesh_bytes", "mesh_files", "header", "write_robot"]
 
@@ -52,7 +52,7 @@ def write_robot(twin: Twin, path: str | Path, text_fn, *, overwrite: bool = True
                 protect=()) -> list[Path]:
     """Write a robot file (``text_fn(twin, meshdir)``: MJCF or URDF text) at ``path`` with the
     twin's meshes in ``<stem>_meshes/`` beside it, whole or not at all: meshes first, the robot
-    file last (:func:`artrecon.io.write_files_atomic`; ``overwrite`` and ``protect`` as there).
+    file last (:func:`artrecon.files.write_files_atomic`; ``overwrite`` and ``protect`` as there).
     Returns every file written, the robot file last."""
     path = Path(path)
     meshdir = f"{path.stem}_meshes"

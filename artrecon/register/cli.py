@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from artrecon.errors import ArtreconError, DegenerateError, InputError
-from artrecon.io import read_json
+from artrecon.files import read_json
 from artrecon.register.stage import FreshImage, read_fresh_pose, read_matrix, register
 
 

@@ -66,11 +66,29 @@ class HandEyeResult:
                 "consistency_deg": self.rotation_residual_deg, "backend": self.backend}
 
 
-def _park_martin_rotation(A: list[np.ndarray], B: list[np.ndarray]) -> np.ndarray:
-    """The rotation of X in AX = XB by Park & Martin (1994), closed form."""
-    M = np.zeros((3, 3))
-    for a, b in zip(A, B, strict=True):
-        M += np.outer(log_so3(b[:3, :3]), log_so3(a[:3, :3]))
+def _rotation_angles(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`artrecon.geometry.rotation_angle` of many rotations (m, 3, 3) at once, and their
+    skew parts (m, 3)."""
+    s = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], 1)
+    return np.arctan2(0.5 * np.linalg.norm(s, axis=1),
+                      0.5 * (np.trace(R, axis1=1, axis2=2) - 1.0)), s
+
+
+def _log_so3_many(R: np.ndarray) -> np.ndarray:
+    """:func:`artrecon.geometry.log_so3` of many rotations (m, 3, 3) at once."""
+    angle, s = _rotation_angles(R)
+    out = np.zeros((len(R), 3))
+    plain = (angle >= 1e-12) & (np.pi - angle >= 1e-6)
+    out[plain] = angle[plain, None] * s[plain] / np.linalg.norm(s[plain], axis=1)[:, None]
+    for k in np.flatnonzero((angle >= 1e-12) & ~plain):  # near pi: by the eigenvector
+        out[k] = log_so3(R[k])
+    return out
+
+
+def _park_martin_rotation(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """The rotation of X in AX = XB by Park & Martin (1994), closed form (A, B: (m, 4, 4))."""
+    A, B = np.asarray(A), np.asarray(B)
+    M = np.einsum("ki,kj->ij", _log_so3_many(B[:, :3, :3]), _log_so3_many(A[:, :3, :3]))
     w, V = np.linalg.eigh(M.T @ M)
     if w.min() <= 1e-12 * max(w.max(), 1e-300):
         raise DegenerateError("hand-eye: the gripper motions rotate about fewer than two distinct "
@@ -125,14 +143,12 @@ def calibrate_hand_eye(T_robot_flange, T_model_camera, scale: float | None = Non
     if scale is not None and not scale > 0:
         raise ValueError(f"scale must be > 0 (metres per model unit), got {scale}")
     T_ct = np.array([invert_pose(c) for c in C])  # target (model, model units) in camera
-    A, B = [], []
-    n = len(G)
-    for i in range(n):
-        for j in range(i + 1, n):
-            a = invert_pose(G[j]) @ G[i]
-            if rotation_angle(a[:3, :3]) >= HAND_EYE_MIN_ROTATION:
-                A.append(a)
-                B.append(T_ct[j] @ invert_pose(T_ct[i]))
+    # every pair i < j of poses (all at once): the flange's motion and the camera's
+    i, j = np.triu_indices(len(G), k=1)
+    A = np.matmul(np.array([invert_pose(g) for g in G])[j], G[i])
+    turns = _rotation_angles(A[:, :3, :3])[0] >= HAND_EYE_MIN_ROTATION
+    i, j, A = i[turns], j[turns], A[turns]
+    B = np.matmul(T_ct[j], np.array([invert_pose(t) for t in T_ct])[i])
     if len(A) < 2:
         raise DegenerateError("hand-eye: fewer than 2 motion pairs rotate by more than "
                               f"{np.rad2deg(HAND_EYE_MIN_ROTATION):.0f} deg")

@@ -33,7 +33,13 @@ import pycolmap
 
 from artrecon.confidence import check_registration_agreement, registration_agreement
 from artrecon.errors import InputError, ReconstructionError
-from artrecon.io import make_work_dir, publish_dir, read_json, write_json_atomic
+from artrecon.files import (
+    check_output_dir,
+    make_work_dir,
+    publish_dir,
+    read_json,
+    write_json_atomic,
+)
 from artrecon.model import ArticulatedModel
 from artrecon.procrustes import Similarity
 from artrecon.register.apply import apply_registration, compare_registrations
@@ -347,10 +353,15 @@ def register(model_dir, *, camera_poses=None, images: list[FreshImage] | None = 
     if out_dir is None:
         out_dir = folder.dir / "registration"
     if out_dir is not False:
-        out_dir = Path(out_dir)
-        if out_dir.exists() and not overwrite:
-            raise InputError(f"output folder {out_dir} exists; choose another (--out) or pass "
-                             "--overwrite")
+        # the model's own files, the pose files and the images are inputs: the output (which
+        # --overwrite replaces whole) may be none of them, hold one or lie inside one; the
+        # default, MODEL_DIR/registration, is the reconstruction folder's registration stage
+        inputs = [folder.dir / "model.json", *(folder.dir / c for c in ("a", "b")),
+                  *(p for p in (camera_poses, hand_eye_poses) if isinstance(p, (str, Path))),
+                  *(im.path for im in images)]
+        out_dir = check_output_dir(out_dir, [p for p in inputs if Path(p).exists()],
+                                   overwrite=overwrite, marker="registration.json",
+                                   example=folder.dir / "registration")
     poses = None
     if camera_poses is not None:
         poses = camera_poses if isinstance(camera_poses, dict) else read_pose_file(camera_poses)

@@ -8,7 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from artrecon.errors import InputError
-from artrecon.io import check_output_path
+from artrecon.files import check_output_path
 from sim.cache import scene_files
 from sim.scene import Scene, SceneError, load_scene
 

@@ -8,7 +8,7 @@
 - a sweep's ``sweep_errors.png`` (the gated errors of every run per scene and seed) and
   ``sweep_<perturbation>.png`` (errors against each perturbation's strength, the gate drawn).
 
-Every file is written whole or not at all (:mod:`artrecon.io`).
+Every file is written whole or not at all (:mod:`artrecon.files`).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from artrecon.io import write_bytes_atomic
+from artrecon.files import write_bytes_atomic
 from sim.evaluate.gates import GATES
 from sim.scene import load_scene
 

@@ -1,7 +1,7 @@
 """The evaluation report: ``results.json``, ``results.md`` and the terminal table.
 
 The pictures are :mod:`sim.evaluate.pictures`, the merged report of a sweep
-:mod:`sim.evaluate.sweep_report`. Every file is written whole or not at all (:mod:`artrecon.io`).
+:mod:`sim.evaluate.sweep_report`. Every file is written whole or not at all (:mod:`artrecon.files`).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from artrecon.io import write_bytes_atomic, write_json_atomic
+from artrecon.files import write_bytes_atomic, write_json_atomic
 
 log = logging.getLogger(__name__)
 

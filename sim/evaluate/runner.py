@@ -143,6 +143,7 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
         model_dir, meta, hit = reconstruct_stage(sets["a"], sets["b"], tuple(keys), ev,
                                                  cache_root, dict(scene.reconstruct_settings),
                                                  (confs["a"], confs["b"]))
+        result["_model_dir"] = str(model_dir)
         rt = meta.get("timings", {})
         timings["sfm"] = rt.get("sfm_a", 0.0) + rt.get("sfm_b", 0.0)
         timings["dense"] = rt.get("dense_a", 0.0) + rt.get("dense_b", 0.0)

@@ -7,7 +7,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from artrecon.io import read_json
+from artrecon.files import read_json
 from sim import metrics
 from sim.evaluate.gates import joint_passes
 from sim.scene import Scene, SceneError

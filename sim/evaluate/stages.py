@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 
 from artrecon import workers
-from artrecon.io import read_json
+from artrecon.files import read_json
 from sim import cache, perturb
 from sim.evaluate.config import EvalConfig, StageError
 from sim.scene import Scene

@@ -49,7 +49,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from artrecon.io import read_json, write_json_atomic
+from artrecon.files import read_json, write_json_atomic
 from sim.evaluate import gates, report, sweep_report
 from sim.evaluate.backends import RAY_EXTRA, SweepError, execute, make_backend  # noqa: F401
 from sim.evaluate.config import EvalConfig

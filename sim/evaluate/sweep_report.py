@@ -6,7 +6,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from artrecon.io import write_bytes_atomic, write_json_atomic
+from artrecon.files import write_bytes_atomic, write_json_atomic
 from sim.evaluate.pictures import (
     _median,
     _write_png,

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -40,6 +40,11 @@ IK_ACCEPT_ROTATION = 1e-4
 #: IK_STALL_ITERATIONS iterations: a converging descent gains far more (damped Gauss-Newton)
 IK_STALL_IMPROVEMENT = 0.95
 IK_STALL_ITERATIONS = 30
+#: Descents an arm remembers (:meth:`ArmKinematics.solve_ik`): a descent is a function of its
+#: start, target and settings, and a view plan repeats a quarter of them exactly (each candidate
+#: ring's probe views are solved again from the same starts; rolled fallbacks and second
+#: chances): drawer config a, 5138 of 20262 descents. The memory is cleared when full.
+IK_MEMO_SIZE = 50_000
 
 
 @dataclass(frozen=True)
@@ -96,6 +101,7 @@ class ArmKinematics:
         self.upper = np.array(pin_model.upperPositionLimit, dtype=float)
         #: azimuth (about world z, from world x) of DH frame 0 when the rail is at 0
         self.azimuth_at_zero = float(azimuth_at_zero)
+        self._memo: dict[tuple, IKResult] = {}
 
     @property
     def nq(self) -> int:
@@ -203,7 +209,16 @@ class ArmKinematics:
             q = start.copy()
             if attempt > 0:
                 q[free] = rng.uniform(self.lower[free], self.upper[free])
-            result = self._descend(q, fid, M_target, position_only, free, max_iter, damping)
+            key = (q.tobytes(), T_target.tobytes(), fid, position_only, free.tobytes(),
+                   max_iter, damping, self.lower.tobytes(), self.upper.tobytes())
+            result = self._memo.get(key)
+            if result is None:
+                result = self._descend(q, fid, M_target, position_only, free, max_iter,
+                                       damping)
+                if len(self._memo) >= IK_MEMO_SIZE:
+                    self._memo.clear()
+                self._memo[key] = result
+            result = replace(result, q=result.q.copy())  # callers own the q they get
             if best is None or (result.position_error + result.rotation_error
                                 < best.position_error + best.rotation_error):
                 best = result
@@ -224,6 +239,10 @@ class ArmKinematics:
         max_step = 0.3  # rad per iteration: keeps the linearisation valid far from the target
         frame = pin.LOCAL_WORLD_ALIGNED if position_only else pin.LOCAL
         lower, upper = self.lower[free], self.upper[free]
+        # every joint free (view planning): J[:, free] is J itself in Fortran order and q[free]
+        # is q; the copies by boolean index were ~15% of an iteration. Fortran order as the
+        # indexed copy had: matmul takes another path for C order, with other rounding
+        all_free = bool(free.all())
         D = damping * np.eye(3 if position_only else 6)
         t_target = np.asarray(M_target.translation)
         q = np.array(q, dtype=float)
@@ -249,7 +268,8 @@ class ArmKinematics:
             elif it - since >= IK_STALL_ITERATIONS:
                 break
             J = pin.getFrameJacobian(model, data, fid, frame)
-            J = (J[:3] if position_only else J)[:, free]
+            J = J[:3] if position_only else J
+            J = np.asfortranarray(J) if all_free else J[:, free]
             # numpy's gufunc behind np.linalg.solve, without its checks (a quarter of the
             # iteration's time, ~10^6 iterations in a large object's view plan): same LAPACK
             # call, same numbers
@@ -257,7 +277,10 @@ class ArmKinematics:
             norm = math.sqrt(float(dq_free @ dq_free))
             if norm > max_step:
                 dq_free *= max_step / norm
-            q[free] = np.minimum(np.maximum(q[free] + dq_free, lower), upper)
+            if all_free:
+                q = np.minimum(np.maximum(q + dq_free, lower), upper)
+            else:
+                q[free] = np.minimum(np.maximum(q[free] + dq_free, lower), upper)
         ok = p_err < IK_ACCEPT_POSITION and r_err < IK_ACCEPT_ROTATION
         return IKResult(q=q, success=bool(ok), position_error=p_err, rotation_error=r_err)
 

@@ -114,6 +114,19 @@ uniform samplerCube diffuse_env;
 uniform samplerCube specular_env;
 #endif
 
+// Light loop bounds: compile-time constants when sim.render knows the scene's light counts
+// (llvmpipe unrolls them into direct uniform reads; a uniform bound makes every read a per-lane
+// gather), else pyrender's uniforms. Same arithmetic, same order, same pixels.
+#ifdef N_DIRECTIONAL_LIGHTS
+#define N_DIRECTIONAL N_DIRECTIONAL_LIGHTS
+#define N_SPOT N_SPOT_LIGHTS
+#define N_POINT N_POINT_LIGHTS
+#else
+#define N_DIRECTIONAL n_directional_lights
+#define N_SPOT n_spot_lights
+#define N_POINT n_point_lights
+#endif
+
 ///////////////////////////////////////////////////////////////////////////////
 // Inputs
 ///////////////////////////////////////////////////////////////////////////////
@@ -228,18 +241,18 @@ void main()
     vec3 c_diff = mix(vec3(0.0), base_color.rgb * (1.0 - min_roughness), 1.0 - metallic)
                   * ((1.0 - min_roughness) / PI);
     vec3 n = normalize(get_normal());
-    for (int i = 0; i < n_directional_lights; i++) {
+    for (int i = 0; i < N_DIRECTIONAL; i++) {
         vec3 l = normalize(-1.0 * directional_lights[i].direction);
         float nl = clamp(dot(n, l), 0.0, 1.0);
         color.xyz += nl * directional_lights[i].intensity * directional_lights[i].color * c_diff;
     }
-    for (int i = 0; i < n_point_lights; i++) {
+    for (int i = 0; i < N_POINT; i++) {
         vec3 d = point_lights[i].position - frag_position;
         float dist2 = dot(d, d);
         float nl = clamp(dot(n, d) * inversesqrt(dist2), 0.0, 1.0);
         color.xyz += nl * point_lights[i].intensity / dist2 * point_lights[i].color * c_diff;
     }
-    for (int i = 0; i < n_spot_lights; i++) {
+    for (int i = 0; i < N_SPOT; i++) {
         vec3 d = spot_lights[i].position - frag_position;
         float dist2 = dot(d, d);
         vec3 l = d * inversesqrt(dist2);
