@@ -736,9 +736,10 @@ def plan_grasp(pw: PlanningWorld, candidates: list[GraspCandidate], est: JointEs
     ranked = rank(pw.fixed_clearance(pw.clear(cands), moving_links), est, prefer_hidden,
                   pw.config)
     tried = []
-    for k, cand in enumerate(_spread(ranked, pw.config.retry_spacing,
-                                     pw.config.max_candidates)):
-        plan, why = plan_candidate(pw, cand, est, amount, q_start, seed + k, moving_links)
+    for cand in _spread(ranked, pw.config.retry_spacing, pw.config.max_candidates):
+        # one seed for every candidate: the same grasp point planned again (the force reference
+        # along the true joint, in scoring) gets the same IK
+        plan, why = plan_candidate(pw, cand, est, amount, q_start, seed, moving_links)
         if plan is not None:
             plan.tried = tried
             return plan, {"total": len(cands), "hidden": n_hidden, "usable": len(ranked),
