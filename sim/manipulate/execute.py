@@ -2,8 +2,9 @@
 
 The arm's position servos follow the plan (travel to the pre-grasp pose, the straight approach,
 then the motion waypoints on a minimum-jerk time law) with computed-torque feed-forward (the arm's
-own inverse dynamics, as in :mod:`sim.capture`), so it tracks the planned path instead of lagging
-behind it.
+own inverse dynamics, as in :mod:`sim.capture`, without contacts: the feed-forward is what the arm
+needs to move itself, never a push into what it touches), so it tracks the planned path instead
+of lagging behind it.
 
 The gripper: the PUMA's is a fixed two-finger shape without actuated fingers, so a grasp is a
 MuJoCo ``<equality><weld>`` between the flange and the body under the fingertips, switched on
@@ -21,6 +22,7 @@ how far it should have moved, is scoring's business (:func:`achieved_along`), no
 
 from __future__ import annotations
 
+import copy
 import logging
 from dataclasses import asdict, dataclass, field
 
@@ -163,7 +165,13 @@ class _Run:
         gid = [mujoco.mj_name2id(world.model, mujoco.mjtObj.mjOBJ_JOINT, n)
                for n in world.kin.joint_names]
         self.gravcomp = world.model.jnt_actgravcomp[gid]
-        self._inv = mujoco.MjData(world.model)
+        # the feed-forward's model: the arm's own dynamics, no contacts and no welds (mj_inverse
+        # with contacts turns a fingertip grazing the object at the commanded pose into a
+        # feed-forward torque that pushes into it)
+        self._inv_model = copy.copy(world.model)
+        self._inv_model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT
+                                                | mujoco.mjtDisableBit.mjDSBL_EQUALITY)
+        self._inv = mujoco.MjData(self._inv_model)
 
     def command(self, q_ref, v_ref=None, a_ref=None) -> np.ndarray:
         """Servo targets that make the arm follow ``q_ref`` at ``v_ref``, ``a_ref``:
@@ -179,7 +187,7 @@ class _Run:
         if a_ref is not None:
             inv.qacc[w.vidx] = a_ref
         inv.eq_active[:] = 0
-        mujoco.mj_inverse(w.model, inv)
+        mujoco.mj_inverse(self._inv_model, inv)
         tau = inv.qfrc_inverse[w.vidx] - self.gravcomp * inv.qfrc_gravcomp[w.vidx]
         return q_ref + (tau + self.kv * v_ref) / self.kp
 

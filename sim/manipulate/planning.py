@@ -22,7 +22,9 @@ ground-truth joint, and the tests that compare the two); the harness never uses 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import mujoco
@@ -66,6 +68,10 @@ class PlanningConfig:
     the object -- are no place to grasp) ..."""
     min_support: int = 20
     """... (about a 1.5 cm disc of a surface sampled every 2-3 mm holds 60-100)"""
+    edge_margin: float = 0.004
+    """a candidate's own face must reach this far (m) beyond it in four directions of its
+    tangent plane: a point on the rim of a face is not grasped (cabinet's drawer handle, 16 mm
+    high, grasped at its lower rim: the fingertips' ray passed under the true handle)"""
     min_sphere_points: int = 2
     """a model sphere stands for a voxel with at least this many points (a single stray point
     blocks no approach)"""
@@ -84,7 +90,16 @@ class PlanningConfig:
     and visible on the true object by a hair, and is called visible"""
     gripper_contact_radius: float = 0.03
     """at the grasp pose the gripper may touch the model within this distance (m) of the grasp
-    point (it is meant to): any other contact of the arm is a collision"""
+    point (it is meant to) ..."""
+    face_contact_radius: float = 0.05
+    """... and on the grasped face (spheres of the grasped link within this distance (m) of the
+    grasp point ...)"""
+    face_contact_depth: float = 0.002
+    """... and met no deeper than this (m): the fingertips graze the spheres, 4 mm high, of
+    the face they stop 3 mm short of): the finger pads reach 4 cm from the grasp point, and on
+    a flat face every grasp met the face's own spheres beyond 3 cm (the truck's bed side
+    planned on its true surfaces: 40 candidates refused for it); any other contact of the arm
+    is a collision (a finger against the side of a handle goes deeper)"""
     approach_radius: float = 0.025
     """free space in front of a candidate: rays along the normal from the point and from four
     points this far (m) around it (the fingertips sit 3 cm off the approach axis) ..."""
@@ -104,6 +119,19 @@ class PlanningConfig:
     """rolls of the gripper about the approach axis tried per candidate (deg)"""
     max_candidates: int = 40
     """candidates planned, in order of preference, before giving up"""
+    retry_spacing: float = 0.015
+    """after a candidate failed, the next one tried lies at least this far (m) from every one
+    tried (the nearer ones come after the others): what stops one candidate (out of reach,
+    the table, a fixed part in the fingers' way) stops its neighbours too, and the 40 tries
+    had gone to the voxels along one edge of chest's lid"""
+    clear_of_fixed: float = 0.035
+    """candidates at least this far (m) from every model surface that does not move with the
+    grasped link come first (the fingertips sit 3 cm either side of the grasp point: a grasp
+    this far from the fixed parts neither touches them nor passes them by a hair as it moves;
+    cabinet_door_only's door grasped at its edge met the carcass's side early in the turn) ..."""
+    min_clear_of_fixed: float = 0.008
+    """... then those at least this far; nearer ones last (the model's surfaces lie a few mm
+    from the true ones: a finger planned to pass a fixed part this close may touch it)"""
     waypoint_angle: float = np.deg2rad(1.0)
     """motion waypoints: one per this much rotation (rad) ..."""
     waypoint_distance: float = 0.002
@@ -114,6 +142,18 @@ class PlanningConfig:
     """largest joint change between waypoints (rad): larger means the IK jumped branches"""
     travel_checks: int = 12
     """configurations checked for contacts along the travel line to the pre-grasp pose"""
+    max_path_kink: float = 0.3
+    """the motion's joint path may change its step between waypoints by at most this share of
+    its largest step: a joint that meets its limit mid-motion stops dead while the others take
+    over in one step, and the arm's inertia turns that corner into a jolt of the grasp's force
+    (cabinet's drawer planned on the true surfaces: the wrist's joint5 met its limit at 70% of
+    the pull, 9.7 N for a joint that needs 0.7 N, the grasp lost in another plan; its door
+    planned on the model: joint5 stopped within two waypoints, 21.9 N)"""
+    joint_limit_margin: float = np.deg2rad(2.0)
+    """the grasp, approach and motion keep every arm joint this far (rad) inside its limits:
+    the IK puts a joint exactly on its limit when the target asks for more, and the servo, a
+    hair behind or ahead of its command, would meet the limit's hard stop through the stiff
+    grasp"""
 
 
 @dataclass(frozen=True)
@@ -125,6 +165,9 @@ class GraspCandidate:
     hidden: bool = False
     visibility: str = ""
     """``"visible"``, ``"occluded by <geom>"`` or ``"outside the image"``"""
+    clearance: float = float("inf")
+    """distance (m) to the nearest surface of the model that does not move with the grasped
+    link (:meth:`PlanningWorld.fixed_clearance`; inf: not measured)"""
 
 
 @dataclass
@@ -208,8 +251,27 @@ def model_grasp_candidates(model, joint: int, config: PlanningConfig = PlanningC
         p = pts[g][np.argmin(np.linalg.norm(pts[g] - c, axis=1))]
         if len(tree.query_ball_point(p, config.support_radius)) < config.min_support:
             continue
+        if not _surrounded(p, n / length, pts, nrm, tree, config):
+            continue
         out.append(GraspCandidate(p, n / length))
     return out
+
+
+def _surrounded(p, n, pts, nrm, tree, config: PlanningConfig) -> bool:
+    """``p`` lies inside its face, not at its rim: the link's points around it that face the
+    same way (normals within ~37 deg) and lie in its tangent plane reach at least
+    :attr:`PlanningConfig.edge_margin` beyond it in each of four directions of that plane."""
+    near = np.asarray(tree.query_ball_point(p, 2.5 * config.edge_margin), dtype=int)
+    if len(near) == 0:
+        return False
+    d = pts[near] - p
+    on_face = (nrm[near] @ n > config.min_normal_agreement) & (np.abs(d @ n) < 0.5 *
+                                                                config.edge_margin)
+    d = d[on_face]
+    u, v = _tangents(n)
+    reach = config.edge_margin
+    return bool(len(d) and (d @ u).max() >= reach and (d @ u).min() <= -reach
+                and (d @ v).max() >= reach and (d @ v).min() <= -reach)
 
 
 def scene_grasp_candidates(world: World, data, body_ids, grid: int = 3,
@@ -415,12 +477,42 @@ class PlanningWorld:
                 out.append(c)
         return out
 
-    def arm_contacts(self, q, grasp_point=None, grasp_links=(), moving_links=()) -> list[str]:
+    def fixed_clearance(self, candidates, moving_links=()) -> list[GraspCandidate]:
+        """Each candidate with its :attr:`GraspCandidate.clearance`: the distance to the nearest
+        model sphere of a link not in ``moving_links`` (in a world planned on the true object:
+        not measured)."""
+        moving = set(moving_links)
+        fixed = [g for g, link in self.model_geoms.items() if link not in moving]
+        if self.source != "registered model" or not fixed or not candidates:
+            return list(candidates)
+        from scipy.spatial import cKDTree
+
+        dist, _ = cKDTree(self.data.geom_xpos[fixed]).query(
+            np.array([c.point for c in candidates]))
+        return [dataclasses.replace(c, clearance=float(d))
+                for c, d in zip(candidates, dist, strict=True)]
+
+    def _on_grasped_face(self, p, depth, grasp_point, grasp_normal) -> bool:
+        """A model sphere at ``p``, met ``depth`` deep (m, MuJoCo's contact distance), that the
+        gripper at the grasp pose may touch: within ``gripper_contact_radius`` of the grasp
+        point, or (``grasp_normal`` given) grazed by the fingertips on the grasped face
+        (:attr:`PlanningConfig.face_contact_radius`, ``face_contact_depth``): the fingertips
+        stop 3 mm short of the surface and the spheres stand 4 mm out of it."""
+        cfg = self.config
+        dist = float(np.linalg.norm(np.asarray(p, float) - grasp_point))
+        if dist < cfg.gripper_contact_radius:
+            return True
+        return bool(grasp_normal is not None and dist < cfg.face_contact_radius
+                    and depth > -cfg.face_contact_depth)
+
+    def arm_contacts(self, q, grasp_point=None, grasp_links=(), moving_links=(),
+                     grasp_normal=None) -> list[str]:
         """Contacts of the arm at configuration ``q`` in the plan's world. With ``grasp_point``,
         the gripper touching the grasped link (a model link of ``grasp_links``) within
         ``gripper_contact_radius`` of it is allowed -- never another link, nor the stage; the
         model links in ``moving_links`` (the grasped link and those it carries, during the
-        motion: they move with the gripper) are not obstacles."""
+        motion: they move with the gripper) are not obstacles. With ``grasp_normal`` too, the
+        gripper may also touch the grasped face under its fingers (:meth:`_on_grasped_face`)."""
         m, d = self.model, self.data
         d.qpos[self.qidx] = q
         mujoco.mj_forward(m, d)
@@ -436,8 +528,8 @@ class PlanningWorld:
                 continue
             if (grasp_point is not None and arm_b in self.gripper_bodies
                     and self.model_geoms.get(other) in set(grasp_links)
-                    and np.linalg.norm(d.geom_xpos[other] - grasp_point)
-                    < self.config.gripper_contact_radius):
+                    and self._on_grasped_face(d.geom_xpos[other], float(c.dist), grasp_point,
+                                              grasp_normal)):
                 continue
             name = [(f"model link {self.model_geoms[g]}" if g in self.model_geoms else
                      mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom{g}")
@@ -449,9 +541,10 @@ class PlanningWorld:
 def rank(candidates: list[GraspCandidate], est: JointEstimate, prefer_hidden: bool,
          config: PlanningConfig = PlanningConfig()) -> list[GraspCandidate]:
     """Usable candidates, best first: hidden ones first when ``prefer_hidden`` (the method's
-    case: a point the camera cannot see now), then the longest lever about the estimated axis
-    (revolute) or the highest point (prismatic). Candidates facing the table and, for a
-    revolute joint, too near its axis are left out."""
+    case: a point the camera cannot see now), then by their clearance from the fixed parts
+    (:attr:`PlanningConfig.clear_of_fixed`, ``min_clear_of_fixed``), then the longest lever
+    about the estimated axis (revolute) or the highest point (prismatic). Candidates facing the
+    table and, for a revolute joint, too near its axis are left out."""
     def lever(c):
         v = c.point - est.point
         return float(np.linalg.norm(v - np.dot(v, est.axis) * est.axis))
@@ -463,7 +556,9 @@ def rank(candidates: list[GraspCandidate], est: JointEstimate, prefer_hidden: bo
 
     def key(c):
         hidden_rank = 0 if (c.hidden == prefer_hidden) else 1
-        return (hidden_rank, -lever(c) if est.type == "revolute" else -c.point[2])
+        tier = (0 if c.clearance >= config.clear_of_fixed else
+                1 if c.clearance >= config.min_clear_of_fixed else 2)
+        return (hidden_rank, tier, -lever(c) if est.type == "revolute" else -c.point[2])
 
     return sorted(usable, key=key)
 
@@ -472,8 +567,47 @@ def plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, 
                    q_start: np.ndarray, seed: int, moving_links=()) -> tuple[Plan | None, str]:
     """IK of the grasp, pre-grasp and approach, and of every waypoint of the motion by
     ``amount`` along ``est``, for each roll; contacts checked in the plan's world (along the
-    motion, the model links ``moving_links`` move with the gripper and are no obstacle). The
-    plan with the shortest travel, or None and why."""
+    motion, the model links ``moving_links`` move with the gripper and are no obstacle); every
+    arm joint kept :attr:`PlanningConfig.joint_limit_margin` inside its limits. The plan with
+    the shortest travel, or None and why."""
+    with _limits_narrowed(pw.kin, pw.config.joint_limit_margin):
+        return _plan_candidate(pw, cand, est, amount, q_start, seed, moving_links)
+
+
+def _kink(q_path: np.ndarray, window: int = 3) -> tuple[float, int] | None:
+    """The largest change of the joint steps between motion waypoints ``window`` apart, as a
+    share of the largest step, and the waypoint where it happens (None: too few waypoints).
+    Waypoints uniform along a smooth motion give a smooth joint path (shares of a few
+    hundredths); a joint that runs into its limit stops within a waypoint or two while the
+    others take over its part of the motion."""
+    steps = np.diff(q_path, axis=0)
+    w = min(window, len(steps) - 1)
+    if w < 1:
+        return None
+    scale = float(np.abs(steps).max())
+    if scale <= 0:
+        return None
+    change = np.abs(steps[w:] - steps[:-w]).max(axis=1)
+    k = int(np.argmax(change))
+    return float(change[k]) / scale, k + (w + 1) // 2
+
+
+@contextmanager
+def _limits_narrowed(kin, margin: float):
+    """The IK of ``kin`` (the planning world's own) kept ``margin`` inside every joint limit
+    (joints whose range is not at least four margins wide keep theirs)."""
+    lower, upper = kin.lower, kin.upper
+    span = upper - lower
+    m = np.where(np.isfinite(span) & (span > 4 * margin), margin, 0.0)
+    kin.lower, kin.upper = lower + m, upper - m
+    try:
+        yield
+    finally:
+        kin.lower, kin.upper = lower, upper
+
+
+def _plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, amount: float,
+                    q_start: np.ndarray, seed: int, moving_links) -> tuple[Plan | None, str]:
     kin, cfg = pw.kin, pw.config
     n_way = max(cfg.min_waypoints, int(np.ceil(abs(amount) / (
         cfg.waypoint_angle if est.type == "revolute" else cfg.waypoint_distance))))
@@ -498,7 +632,8 @@ def plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, 
         if not pre.success:
             reasons.append(f"roll {roll}: pre-grasp unreachable")
             continue
-        hits = (pw.arm_contacts(ik.q, grasp_point=cand.point, grasp_links=moving_links)
+        hits = (pw.arm_contacts(ik.q, grasp_point=cand.point, grasp_links=moving_links,
+                                grasp_normal=cand.normal)
                 or pw.arm_contacts(pre.q))
         if hits:
             reasons.append(f"roll {roll}: arm touches {hits[0]}")
@@ -530,6 +665,11 @@ def plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, 
             reasons.append(f"roll {roll}: motion leaves the workspace or joint limits at "
                            f"{sk * 100:.0f}% of the path")
             continue
+        kink = _kink(np.array(q_path))
+        if kink is not None and kink[0] > cfg.max_path_kink:
+            reasons.append(f"roll {roll}: the motion's joint path kinks at "
+                           f"{100 * s[kink[1]]:.0f}% of the path (a joint held at its limit)")
+            continue
         step = max(1, len(q_path) // cfg.travel_checks)
         hits = next((h for h in (pw.arm_contacts(qk, moving_links=moving_links)
                                  for qk in q_path[step::step]) if h), [])
@@ -555,6 +695,28 @@ def plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, 
     return best[1], ""
 
 
+def _spread(ranked: list[GraspCandidate], spacing: float, budget: int):
+    """``ranked`` in order, at most ``budget`` of them, each one after a failure at least
+    ``spacing`` from every candidate tried before it (a generator: what it yields next depends
+    on nothing but the order -- every candidate yielded before failed); the candidates it
+    skipped follow, in order, when the others run out."""
+    tried: list[np.ndarray] = []
+    skipped = []
+    for c in ranked:
+        if len(tried) >= budget:
+            return
+        if tried and np.min(np.linalg.norm(np.array(tried) - c.point, axis=1)) < spacing:
+            skipped.append(c)
+            continue
+        tried.append(c.point)
+        yield c
+    for c in skipped:
+        if len(tried) >= budget:
+            return
+        tried.append(c.point)
+        yield c
+
+
 def plan_grasp(pw: PlanningWorld, candidates: list[GraspCandidate], est: JointEstimate,
                amount: float, q_start, *, prefer_hidden: bool = True, seed: int = 0,
                moving_links=()) -> tuple[Plan, dict]:
@@ -571,10 +733,13 @@ def plan_grasp(pw: PlanningWorld, candidates: list[GraspCandidate], est: JointEs
     q_start = np.asarray(q_start, float)
     cands = pw.classify_visibility(q_start, candidates)
     n_hidden = sum(c.hidden for c in cands)
-    ranked = rank(pw.clear(cands), est, prefer_hidden, pw.config)
+    ranked = rank(pw.fixed_clearance(pw.clear(cands), moving_links), est, prefer_hidden,
+                  pw.config)
     tried = []
-    for k, cand in enumerate(ranked[:pw.config.max_candidates]):
-        plan, why = plan_candidate(pw, cand, est, amount, q_start, seed + k, moving_links)
+    for cand in _spread(ranked, pw.config.retry_spacing, pw.config.max_candidates):
+        # one seed for every candidate: the same grasp point planned again (the force reference
+        # along the true joint, in scoring) gets the same IK
+        plan, why = plan_candidate(pw, cand, est, amount, q_start, seed, moving_links)
         if plan is not None:
             plan.tried = tried
             return plan, {"total": len(cands), "hidden": n_hidden, "usable": len(ranked),

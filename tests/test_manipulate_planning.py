@@ -1,0 +1,131 @@
+"""Pieces of the plan that each cost a bundled scene its manipulation (issue 19): a motion that
+holds an arm joint at its limit, grasp candidates on the rim of a face or beside a fixed part,
+tries spent on one edge, and the feed-forward pushing into what the fingertips touch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+import sim  # noqa: F401
+from sim.manipulate import GraspCandidate, JointEstimate, PlanningConfig, build_world, fresh_data
+from sim.manipulate import planning as P
+from sim.manipulate.execute import GripConfig, _Run
+from sim.scene import load_scene
+
+
+def _path(n=40):
+    s = np.linspace(0.0, 1.0, n + 1)[:, None]
+    return np.hstack([0.3 * s, -0.2 * s + 0.05 * s ** 2, 0.1 * np.sin(s)])
+
+
+def test_a_smooth_joint_path_has_no_kink():
+    share, _ = P._kink(_path())
+    assert share < 0.05
+
+
+def test_a_joint_stopped_at_its_limit_is_a_kink():
+    """The third joint stops at 60% of the path (its limit) and the first takes over its part:
+    the kind of path that jolted cabinet's door (21.9 N) and drawer (9.7 N)."""
+    q = _path()
+    q[:, 2] = np.linspace(0.0, 0.25, len(q))
+    stop = 24
+    q[stop:, 2] = q[stop, 2]
+    q[stop:, 0] += np.linspace(0.0, 0.1, len(q) - stop)
+    share, at = P._kink(q)
+    assert share > PlanningConfig().max_path_kink
+    assert abs(at - stop) <= 2
+
+
+def test_the_plans_ik_stays_inside_the_limits():
+    kin = P.PlanningWorld.from_scene(build_world(load_scene("pliers"))).kin
+    lower, upper = kin.lower.copy(), kin.upper.copy()
+    margin = PlanningConfig().joint_limit_margin
+    with P._limits_narrowed(kin, margin):
+        q = kin.clip(upper + 1.0)
+        assert np.all(q <= upper - margin + 1e-12)
+    assert np.array_equal(kin.lower, lower) and np.array_equal(kin.upper, upper)
+
+
+def _face(step=0.002, half=0.02):
+    """A flat square face (z = 0, normal +z) sampled every ``step``."""
+    g = np.arange(-half, half + 1e-9, step)
+    x, y = np.meshgrid(g, g)
+    pts = np.c_[x.ravel(), y.ravel(), np.zeros(x.size)]
+    return pts, np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+
+
+def test_a_point_on_the_rim_of_its_face_is_no_candidate():
+    pts, nrm = _face()
+    tree, cfg, n = cKDTree(pts), PlanningConfig(), np.array([0.0, 0.0, 1.0])
+    assert P._surrounded(np.zeros(3), n, pts, nrm, tree, cfg)
+    assert not P._surrounded(np.array([0.02, 0.0, 0.0]), n, pts, nrm, tree, cfg)
+    assert not P._surrounded(np.array([0.019, 0.019, 0.0]), n, pts, nrm, tree, cfg)
+
+
+def test_candidates_clear_of_the_fixed_parts_come_first():
+    est = JointEstimate("revolute", [0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
+    up = np.array([1.0, 0.0, 0.0])
+    near = GraspCandidate(np.array([0.20, 0.0, 0.0]), up, clearance=0.01)  # longest lever
+    clear = GraspCandidate(np.array([0.12, 0.0, 0.0]), up, clearance=0.05)
+    touching = GraspCandidate(np.array([0.25, 0.0, 0.0]), up, clearance=0.002)
+    ranked = P.rank([touching, near, clear], est, prefer_hidden=True)
+    assert [c.point[0] for c in ranked] == [0.12, 0.20, 0.25]
+
+
+def test_tries_after_a_failure_are_spread_along_the_link():
+    n = np.array([0.0, 0.0, 1.0])
+    edge = [GraspCandidate(np.array([0.006 * k, 0.0, 0.0]), n) for k in range(20)]
+    order = [c.point[0] for c in P._spread(edge, 0.015, 40)]
+    assert sorted(order) == sorted(c.point[0] for c in edge)  # nothing lost
+    first = order[:len([x for x in order if x in (0.0, 0.018, 0.036, 0.054, 0.072, 0.09,
+                                                   0.108)])]
+    assert np.all(np.diff(first) >= 0.015 - 1e-12)
+    assert len(list(P._spread(edge, 0.015, 5))) == 5
+
+
+def test_the_feed_forward_ignores_contacts():
+    """The arm's feed-forward is its own inverse dynamics: with the fingertips 1 cm into the
+    table it is what it is with the table gone (with contacts, MuJoCo's inverse dynamics turns
+    the contact into torque pushing into it: a fingertip grazing the object spiked the grip)."""
+    import mujoco
+
+    world = build_world(load_scene("pliers"))
+    data = fresh_data(world)
+    m = world.model
+    table = [g for g in range(m.ngeom) if (m.geom(g).name or "") == "table_top"]
+    assert table
+    top = data.geom_xpos[table[0]][2] + m.geom_size[table[0]][2]
+    T = np.diag([1.0, -1.0, -1.0, 1.0])  # grasp frame's z (the approach) pointing down
+    T[:3, 3] = [0.25, 0.0, top + 0.005]  # the fingertips reach 15 mm beyond it
+    ik = world.kin.solve_ik(T, "grasp", data.qpos[world.qidx], seed=0)
+    assert ik.success
+    q = ik.q
+
+    def inverse(model):
+        inv = mujoco.MjData(model)
+        inv.qpos[:] = data.qpos
+        inv.qpos[world.qidx] = q
+        mujoco.mj_inverse(model, inv)
+        return inv.qfrc_inverse[world.vidx].copy(), inv.ncon
+
+    run = _Run(world, data, GripConfig(), None)
+    with_contacts, ncon = inverse(m)
+    assert ncon > 0 and not np.allclose(with_contacts, inverse(run._inv_model)[0])
+    u = run.command(q)
+    run._inv_model.geom_contype[table] = 0
+    run._inv_model.geom_conaffinity[table] = 0
+    run._inv_model.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    np.testing.assert_allclose(u, run.command(q), atol=1e-9)
+
+
+@pytest.mark.parametrize("flag", ["mjDSBL_CONTACT", "mjDSBL_EQUALITY"])
+def test_the_feed_forward_model_has_no_contacts_nor_welds(flag):
+    import mujoco
+
+    world = build_world(load_scene("pliers"))
+    run = _Run(world, fresh_data(world), GripConfig(), None)
+    bit = int(getattr(mujoco.mjtDisableBit, flag))
+    assert run._inv_model.opt.disableflags & bit
+    assert not world.model.opt.disableflags & bit  # the physics keeps its contacts
