@@ -440,9 +440,9 @@ def robust_refit(points_a: np.ndarray, points_b: np.ndarray, seg: Segmentation,
     Least squares follows every match it is given. Near a hinge the two links' features crowd,
     and a handful of matches a few noise levels off (seen: 4 of the 152 of pliers_panda's moving
     half, within 13 mm of the pin, 1-2.6 mm off) tilt the small link's rotation and the axis with
-    it (2.1 degrees there). Cauchy weights with each population's noise scale measured on its
-    own residuals (the link's matches; the background matches, noisier) give such matches little
-    say and the others nearly all of it.
+    it (2.1 degrees there). The maximum-likelihood fit under heavy-tailed (Cauchy) noise, each
+    population's noise scale estimated with it (the link's matches; the background matches,
+    noisier), gives such matches little say and the others most of it.
 
     Returns
     -------
@@ -469,9 +469,10 @@ def robust_refit(points_a: np.ndarray, points_b: np.ndarray, seg: Segmentation,
     if anchors:
         anchors = {k: (*anchors[k][:2], weights[k][sizes[k]:]) for k in anchors}
     for k, (T0, T1) in enumerate(zip(seg.transforms, transforms, strict=True)):
-        log.info("robust refit: link %d turned %.3g deg from least squares; %d of %d matches "
-                 "weigh under 0.5", k, np.degrees(rotation_angle(T0.rotation.T @ T1.rotation)),
-                 int(np.sum(weights[k] < 0.5)), len(weights[k]))
+        log.info("robust refit: link %d turned %.3g deg from least squares; %d of its %d "
+                 "matches weigh under a tenth of their median", k,
+                 np.degrees(rotation_angle(T0.rotation.T @ T1.rotation)),
+                 int(np.sum(weights[k] < 0.1 * np.median(weights[k]))), len(weights[k]))
     rms = [_rms(T, points_a[labels == k], points_b[labels == k])
            for k, T in enumerate(transforms)]
     return replace(seg, transforms=transforms, scale=float(transforms[0].scale), rms=rms,

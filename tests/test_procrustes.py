@@ -165,38 +165,36 @@ def test_shapes_are_validated():
 
 
 def _link_with_outliers(rng, truth, n, noise, outliers, offset):
-    """A small link (6 x 2 x 1 cm) of n noisy pairs under ``truth``, the last ``outliers`` of them
+    """A small link (6 x 4 x 2 cm) of n noisy pairs under ``truth``, the last ``outliers`` of them
     (at one end, as matches crowd near a hinge) pushed ``offset`` off, all the same way."""
-    src = rng.normal(size=(n, 3)) * [0.03, 0.01, 0.005]
+    src = rng.normal(size=(n, 3)) * [0.03, 0.02, 0.01]
     src[-outliers:, 0] = 0.03 + rng.uniform(0, 0.005, outliers)
     dst = truth.apply(src) + rng.normal(0.0, noise, (n, 3))
     dst[len(src) - outliers:] += offset * np.array([0.0, 0.6, 0.8])
     return src, dst
 
 
-@pytest.mark.parametrize("seed", range(5))
-def test_robust_recovers_a_known_transform_despite_gross_outliers(seed):
+def test_robust_recovers_a_known_transform_despite_gross_outliers():
     """Two links with one common scale; the small one has 4 of its 150 pairs 4 mm off (20 x the
-    0.2 mm noise). Least squares tilts its rotation by tenths of a degree from where the other
-    146 put it; the Cauchy-weighted fit, its noise scale from the residuals themselves, stays
-    there, gives the outliers little weight and the others most of it."""
-    rng = np.random.default_rng(seed)
-    scale = 1.3
-    big_t, small_t = random_similarity(rng, scale), random_similarity(rng, scale)
-    big = _link_with_outliers(rng, big_t, 400, 2e-4, 1, 0.0)
-    small = _link_with_outliers(rng, small_t, 150, 2e-4, 4, 4e-3)
-    ls = shared_scale_transforms([big, small])
-    robust, weights = robust_shared_scale_transforms([big, small])
-    # what least squares gives without the outliers: the best the noise allows
-    clean = shared_scale_transforms([big, (small[0][:-4], small[1][:-4])])[1]
-    pulled = np.degrees(rotation_angle(ls[1].rotation @ clean.rotation.T))
-    off = np.degrees(rotation_angle(robust[1].rotation @ clean.rotation.T))
-    assert pulled > 0.05
-    assert off < 0.2 * pulled
-    assert robust[0].scale == robust[1].scale == pytest.approx(scale, rel=1e-3)
-    assert np.all(weights[1][-4:] < 0.05)
-    assert np.median(weights[1][:-4]) > 0.6
-    assert np.mean(weights[0]) > 0.6
+    0.2 mm noise), all at one end. Least squares tilts its rotation by 0.1-0.3 degrees; the
+    Cauchy maximum-likelihood fit, its noise scale estimated with it, stays near the truth and
+    gives the outliers hardly any weight."""
+    errors = []
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        scale = 1.3
+        big_t, small_t = random_similarity(rng, scale), random_similarity(rng, scale)
+        big = _link_with_outliers(rng, big_t, 400, 2e-4, 1, 0.0)
+        small = _link_with_outliers(rng, small_t, 150, 2e-4, 4, 4e-3)
+        ls = shared_scale_transforms([big, small])
+        robust, weights = robust_shared_scale_transforms([big, small])
+        errors.append([np.degrees(rotation_angle(t[1].rotation @ small_t.rotation.T))
+                       for t in (ls, robust)])
+        assert robust[0].scale == robust[1].scale == pytest.approx(scale, rel=1e-3)
+        assert np.all(weights[1][-4:] < 0.02 * np.median(weights[1][:-4]))
+    errors = np.array(errors)
+    assert errors[:, 0].min() > 0.09
+    assert errors[:, 1].max() < 0.1 and errors[:, 1].mean() < 0.5 * errors[:, 0].mean(), errors
 
 
 def test_robust_is_exact_without_noise_and_separates_populations():
@@ -217,14 +215,14 @@ def test_robust_is_exact_without_noise_and_separates_populations():
     pops = np.r_[np.zeros(100, int), np.ones(100, int)]
     _, (w_sep,) = robust_shared_scale_transforms([(src, dst)], [pops])
     _, (w_one,) = robust_shared_scale_transforms([(src, dst)])
-    assert np.median(w_sep[100:]) > 0.6
-    assert np.median(w_one[100:]) < 0.2  # one noise scale for both: the noisy half is shut out
+    assert np.median(w_sep[100:]) > 0.5 * np.median(w_sep[:100])
+    # one noise scale for both: the noisy half is shut out
+    assert np.median(w_one[100:]) < 0.1 * np.median(w_one[:100])
 
 
 def test_cauchy_weights():
-    r = np.array([0.0, 1.0, 2.3849, 10.0])
-    np.testing.assert_allclose(cauchy_weights(r, 1.0), [1.0, 1 / (1 + (1 / 2.3849) ** 2), 0.5,
-                                                        1 / (1 + (10 / 2.3849) ** 2)])
+    r = np.array([0.0, 1.0, 3.0])
+    np.testing.assert_allclose(cauchy_weights(r, 1.0), [1.0, 0.5, 0.1])
     assert np.all(cauchy_weights(r, 0.0) == 1.0)
     with pytest.raises(ValueError, match="populations"):
         robust_shared_scale_transforms([(np.eye(3), np.eye(3))], [None, None])
