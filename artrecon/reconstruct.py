@@ -40,7 +40,6 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from artrecon import workers
 from artrecon._version import __version__
@@ -574,12 +573,10 @@ def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndar
     # dense points the table is seen through (fattened edges of thin links) join no link
     drop_a = table_free_space(dense_a.points, views_a, occluders_a, config, seed)
     drop_b = table_free_space(dense_b.points, views_b, occluders_b, config, seed)
-    # the table next to the object stays with the base: Potts neighbours of known label
     lab_a, lab_b = assign_dense_to_links(
         dense_a.subset(~drop_a), dense_b.subset(~drop_b), points_a, points_b, seg,
         views_a=views_a, views_b=views_b, occluders_a=occluders_a, occluders_b=occluders_b,
-        config=config.assign, base=root, static_a=table_points(occluders_a, dense_a.points),
-        static_b=table_points(occluders_b, dense_b.points))
+        config=config.assign)
     lab_a = _expand(lab_a, ~drop_a)
     lab_b = _expand(lab_b, ~drop_b)
     links = links_from_labels(dense_a, dense_b, lab_a, lab_b, seg.transforms)
@@ -618,26 +615,6 @@ def table_free_space(points: np.ndarray, views, occluders, config: ReconstructCo
                           tolerance=r.plane_tolerance, min_fraction=r.plane_min_fraction,
                           iterations=r.plane_iterations, seed=seed)
     return seen_through_table(points, views, plane, config.freespace, seed)
-
-
-def table_points(occluders: np.ndarray | None, object_points: np.ndarray) -> np.ndarray | None:
-    """The dense points of one configuration that the object region took for the background
-    (``occluders``, all its dense points, less the object's ``object_points``). Next to the object
-    these are the table it stands on (and the base's lowest millimetres, cut with the table):
-    static, they move as the base does. None without occluders."""
-    if occluders is None or len(occluders) == 0:
-        return None
-    occluders = np.asarray(occluders, float)
-    if len(object_points) == 0:
-        return occluders
-    # the object's points are the same numbers in both arrays (artrecon.configuration); if they
-    # are not (occluders from elsewhere), the object's own surface would pass for the table
-    d = cKDTree(np.asarray(object_points, float)).query(occluders)[0]
-    if np.count_nonzero(d == 0) < 0.5 * len(object_points):
-        log.warning("the occluders do not hold the object's dense points; the table is left out "
-                    "of the dense labelling")
-        return None
-    return occluders[d > 0]
 
 
 def _expand(labels: np.ndarray, kept: np.ndarray) -> np.ndarray:

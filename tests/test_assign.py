@@ -261,36 +261,3 @@ def test_hypothesis_fits_only_on_its_own_link_once_the_other_side_is_labelled():
                        np.array([0, 1]), dst_labels=dst_labels, **kw)
     assert (whole == 0).all()  # a tie: both fit, the first link wins
     assert (own == 1).all()
-
-
-def test_table_keeps_a_thin_strip_of_the_base_under_another_link():
-    """A wall (x along it, z up), points 2 mm apart: its lowest two rows (z < 5 mm) are the base
-    (link 0), the nine rows above another link (1); the table is below. Both links' motions
-    slide the wall along itself, so only each point's nearest match (a weak prior) says which
-    link it is on. Without the table in the graph the strip's only other-labelled neighbours
-    are link 1's and the Potts term flips it; with the table as neighbours of known label (the
-    base's), the strip keeps its label."""
-    rng = np.random.default_rng(0)
-    X, Z = np.meshgrid(np.arange(0.0, 0.2, 0.002), np.arange(1, 12) * 0.002)
-    jitter = rng.normal(0.0, 0.0002, (X.size, 2))  # breaks the grid's ties among neighbours
-    src = np.c_[X.ravel() + jitter[:, 0], np.zeros(X.size), Z.ravel() + jitter[:, 1]]
-    truth = (src[:, 2] > 0.005).astype(int)
-    Xd, Zd = np.meshgrid(np.arange(-0.1, 0.3, 0.002), np.arange(1, 12) * 0.002)
-    dst = np.c_[Xd.ravel(), np.zeros(Xd.size), Zd.ravel()]  # the same wall, longer
-    stay = Similarity(np.eye(3), np.zeros(3), 1.0)
-    slide = Similarity(np.eye(3), np.array([0.02, 0.0, 0.0]), 1.0)
-    tx = np.arange(-0.02, 0.22, 0.002)
-    table = np.c_[tx, np.zeros(len(tx)), rng.normal(0.0, 0.0002, len(tx))]
-    normals = np.tile([0.0, -1.0, 0.0], (len(src), 1))
-    # each point's own label as its nearest match: the prior, 0.3, against 0.7 per cut edge
-    args = (src, normals, dst, [stay, slide], [1e-4, 1e-4], src, truth)
-    without = label_points(*args)
-    with_table = label_points(*args, static=table, base=0)
-    strip = truth == 0
-    assert (without[strip] == 1).all()
-    assert (with_table[strip] == 0).all()
-    # the border may shift by a row (the strip's own graph reaches up further than down), and a
-    # corner where the table juts out may follow it; the rest stays where it was
-    assert (with_table[src[:, 2] > 0.007] == 1).mean() > 0.99
-    # a table beside another base link (1) holds the strip on link 1
-    assert (label_points(*args, static=table, base=1) == 1).all()
