@@ -143,10 +143,15 @@ class ConfidenceConfig:
 # --- batched rigid fits --------------------------------------------------------------------------
 
 
-def _batch_rigid(pa: np.ndarray, pb: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
-    """Rotations (B, 3, 3) and translations (B, 3) of pb ~ scale R pa + t for B point sets."""
-    ma, mb = pa.mean(axis=1), pb.mean(axis=1)
-    cov = np.einsum("bni,bnj->bij", pb - mb[:, None], pa - ma[:, None])
+def _batch_rigid(pa: np.ndarray, pb: np.ndarray, scale: float,
+                 w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations (B, 3, 3) and translations (B, 3) of pb ~ scale R pa + t for B point sets
+    (weighted least squares with weights ``w`` (B, n) when given)."""
+    if w is None:
+        w = np.ones(pa.shape[:2])
+    w = w / w.sum(axis=1, keepdims=True)
+    ma, mb = np.einsum("bn,bni->bi", w, pa), np.einsum("bn,bni->bi", w, pb)
+    cov = np.einsum("bni,bnj->bij", (pb - mb[:, None]) * w[:, :, None], pa - ma[:, None])
     u, _, vt = np.linalg.svd(cov)
     d = np.sign(np.linalg.det(u @ vt))
     u[:, :, 2] *= d[:, None]
@@ -191,8 +196,8 @@ def joint_confidence(joint, points_a, points_b, segmentation, joint_config=None,
     config : ConfidenceConfig
     seed : int
     anchors : dict, optional
-        ``{link: (points_a, points_b)}``, further matches the link's transform was fitted to
-        (see :func:`assess_joints`); resampled with its own in the bootstrap.
+        ``{link: (points_a, points_b[, weights])}``, further matches the link's transform was
+        fitted to (see :func:`assess_joints`); resampled with its own in the bootstrap.
 
     Returns
     -------
@@ -226,15 +231,21 @@ def joint_confidence(joint, points_a, points_b, segmentation, joint_config=None,
                      "rotation_deg": float(np.degrees(rotation_angle(rel.rotation))),
                      "noise": noise, "snr": float(snr)}
 
-    # Bootstrap of the estimator over the two links' inliers (and the matches anchoring them).
+    # Bootstrap of the estimator over the two links' inliers (and the matches anchoring them),
+    # each match with the weight the links' fit gave it (segmentation.weights, robust refit).
     boot_idx = dict(idx)
-    for k, (xa, xb) in (anchors or {}).items():
+    w_all = (np.ones(n_all) if segmentation.weights is None
+             else np.asarray(segmentation.weights, float))
+    for k, anchor in (anchors or {}).items():
+        xa, xb = anchor[:2]
         if k in boot_idx and len(xa):
             boot_idx[k] = np.concatenate([idx[k], len(pa_all) + np.arange(len(xa))])
             pa_all, pb_all = np.vstack([pa_all, xa]), np.vstack([pb_all, xb])
+            w_all = np.r_[w_all, anchor[2] if len(anchor) > 2 else np.ones(len(xa))]
     rec["bootstrap"] = _bootstrap(joint, pa_all, pb_all, idx, T, segmentation.scale,
                                   links[C]["extent"], joint_config, config.bootstrap_samples,
-                                  seed, joint_from_motion, relative_motion, fit_idx=boot_idx)
+                                  seed, joint_from_motion, relative_motion, fit_idx=boot_idx,
+                                  weights=w_all)
 
     reasons = []
     for k, role in ((P, "parent"), (C, "child")):
@@ -268,9 +279,10 @@ def joint_confidence(joint, points_a, points_b, segmentation, joint_config=None,
 
 
 def _bootstrap(joint, pa_all, pb_all, idx, T, scale, child_extent, joint_config, n_boot, seed,
-               joint_from_motion, relative_motion, fit_idx=None) -> dict:
+               joint_from_motion, relative_motion, fit_idx=None, weights=None) -> dict:
     """Resample each link's fit (over ``fit_idx``, default ``idx``: its members, and any matches
-    anchoring it) and re-estimate the joint (with the links' own points, ``idx``)."""
+    anchoring it; each match with its ``weights`` entry, default 1) and re-estimate the joint
+    (with the links' own points, ``idx``)."""
     rng = np.random.default_rng(seed)
     P, C = joint.parent, joint.child
     fit_idx = idx if fit_idx is None else fit_idx
@@ -284,7 +296,8 @@ def _bootstrap(joint, pa_all, pb_all, idx, T, scale, child_extent, joint_config,
             continue
         draw = rng.integers(0, len(members), size=(n_boot, len(members)))
         chunk = max(1, BOOTSTRAP_CHUNK // len(members))  # bounds memory: chunk x n x 3 floats
-        parts = [_batch_rigid(pa_all[members[d]], pb_all[members[d]], scale)
+        parts = [_batch_rigid(pa_all[members[d]], pb_all[members[d]], scale,
+                              None if weights is None else weights[members[d]])
                  for d in np.array_split(draw, range(chunk, n_boot, chunk))]
         fits[k] = (np.concatenate([r for r, _ in parts]), np.concatenate([t for _, t in parts]))
     out = {"samples": int(n_boot), "axis_spread_deg": float("inf"), "point_spread": float("inf"),
@@ -351,8 +364,8 @@ def assess_joints(points_a, points_b, segmentation, joints, joint_config=None,
     config : ConfidenceConfig
     seed : int
     anchors : dict, optional
-        ``{link: (points_a, points_b)}``: matches outside the segmentation that the link's
-        transform was also fitted to (the background, for the base:
+        ``{link: (points_a, points_b[, weights])}``: matches outside the segmentation that the
+        link's transform was also fitted to (the background, for the base:
         :func:`artrecon.reconstruct.anchor_to_background`); the bootstrap resamples them with
         the link's own.
 

@@ -14,15 +14,25 @@ import numpy as np
 
 from artrecon.errors import DegenerateError
 from artrecon.geometry import rotation_angle
-from artrecon.tolerances import COLLINEAR_RATIO
+from artrecon.tolerances import ADAPTIVE_THRESHOLD_FLOOR, COLLINEAR_RATIO, scene_size
 
 log = logging.getLogger(__name__)
+
+#: Median of the chi distribution with 3 degrees of freedom: a 3D residual of isotropic Gaussian
+#: noise with standard deviation sigma per axis has median length 1.5382 sigma. The robust fit's
+#: starting noise scale is median(|r|) / CHI3_MEDIAN (the EM then finds its own).
+CHI3_MEDIAN = 1.5382
+#: Reweighting rounds of robust_shared_scale_transforms at most (it stops when the weights settle:
+#: a few rounds from the least-squares start).
+ROBUST_ITERATIONS = 50
 
 __all__ = [
     "Similarity",
     "similarity_transform",
     "rigid_transform",
     "shared_scale_transforms",
+    "robust_shared_scale_transforms",
+    "cauchy_weights",
     "batch_similarity_transforms",
     "rotation_angle",
 ]
@@ -355,3 +365,88 @@ def batch_similarity_transforms(
         scales = np.full(len(src), float(scale))
     translations = mu_d - scales[:, None] * np.einsum("mij,mj->mi", rotations, mu_s)
     return rotations, translations, scales
+
+
+def cauchy_weights(residuals: np.ndarray, sigma: float) -> np.ndarray:
+    """Weights 1 / (1 + (r / sigma)^2) of residual lengths ``r`` under Cauchy noise of scale
+    ``sigma`` (the E-step of :func:`robust_shared_scale_transforms`, up to the factor 4); all 1
+    when ``sigma`` is 0 (an exact fit has nothing to weigh)."""
+    r = np.asarray(residuals, float)
+    if not sigma > 0:
+        return np.ones_like(r)
+    return 1.0 / (1.0 + (r / sigma) ** 2)
+
+
+def robust_shared_scale_transforms(
+    groups: list[tuple[np.ndarray, np.ndarray]],
+    populations: list[np.ndarray | None] | None = None,
+    iterations: int = ROBUST_ITERATIONS,
+) -> tuple[list[Similarity], list[np.ndarray]]:
+    """:func:`shared_scale_transforms` under heavy-tailed noise: the maximum-likelihood fit when
+    each pair's residual follows a 3D Cauchy distribution (Student t with 1 degree of freedom)
+    of unknown scale, by EM (iteratively reweighted least squares; Lange, Little and Taylor,
+    JASA 1989).
+
+    Least squares is the maximum-likelihood fit under Gaussian noise, and follows every pair: a
+    handful of wrong matches a few noise levels off (near a hinge, where two links' features
+    crowd) tilts a small link's rotation, and with it the joint's axis. Match residuals are far
+    from Gaussian (measured on the bundled scenes: the 90th percentile of their lengths is 2.3-2.7
+    x the median, against 1.63 x for Gaussian noise). The Cauchy model has such tails; under it
+    each round (E-step) weighs each pair by u = 4 / (1 + (r / sigma)^2) (r its residual length),
+    then (M-step) refits the motions by weighted least squares with one common scale and each
+    population's noise scale by sigma^2 = sum(u r^2) / (3 m). Pairs at the noise level keep most
+    of their say, pairs many sigma off lose it. No constant is chosen: the noise scale of each
+    population is estimated with the motions. Populations are sets of pairs with their own
+    noise (a link's matches, and the background matches anchoring the base, triangulated farther
+    away). The EM starts from the least-squares fit and the scale median(r) / CHI3_MEDIAN, and
+    stops when no weight changes by more than 1e-6 (or after ``iterations`` rounds). Residuals
+    under ADAPTIVE_THRESHOLD_FLOOR x the scene size are exact: an exact fit keeps every weight 1.
+
+    Parameters
+    ----------
+    groups : list of (src (n_k, 3), dst (n_k, 3))
+    populations : list of (n_k,) int or None, optional
+        Population of each pair of each group (None: one population per group).
+    iterations : int
+
+    Returns
+    -------
+    transforms : list of Similarity
+        One per group, all with the same scale.
+    weights : list of (n_k,) float
+        The final weight (0-1] of every pair, 1 / (1 + (r / sigma)^2).
+    """
+    if populations is None:
+        populations = [None] * len(groups)
+    if len(populations) != len(groups):
+        raise ValueError(f"populations must have {len(groups)} entries, got {len(populations)}")
+    pops = []
+    for (src, _), pk in zip(groups, populations, strict=True):
+        pk = np.zeros(len(src), np.int64) if pk is None else np.asarray(pk)
+        if pk.shape != (len(src),):
+            raise ValueError(f"a group of {len(src)} pairs got populations of shape {pk.shape}")
+        pops.append(pk)
+    # residuals below this are exact (rounding): they set no noise scale
+    floor = ADAPTIVE_THRESHOLD_FLOOR * max(scene_size(np.asarray(dst, float))
+                                           for _, dst in groups)
+    weights = [np.ones(len(src)) for src, _ in groups]
+    sigma: dict[tuple[int, int], float] = {}
+    transforms = shared_scale_transforms(groups)
+    for _ in range(iterations):
+        new = []
+        for g, ((src, dst), T, pk) in enumerate(zip(groups, transforms, pops, strict=True)):
+            r = np.linalg.norm(T.apply(np.asarray(src, float)) - dst, axis=1)
+            w = np.empty(len(r))
+            for p in np.unique(pk):
+                m = pk == p
+                s = sigma.get((g, p), float(np.median(r[m])) / CHI3_MEDIAN)
+                s = max(s, floor)
+                w[m] = cauchy_weights(r[m], s)  # E-step
+                sigma[g, p] = float(np.sqrt(np.sum(4.0 * w[m] * r[m] ** 2) / (3 * m.sum())))
+            new.append(w)
+        change = max(float(np.max(np.abs(a - b))) for a, b in zip(new, weights, strict=True))
+        weights = new
+        transforms = shared_scale_transforms(groups, weights)  # M-step (the motions)
+        if change < 1e-6:
+            break
+    return transforms, weights

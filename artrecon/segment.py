@@ -109,6 +109,9 @@ class Segmentation:
         Hypotheses drawn in each RANSAC round (the last round is the one that found no link).
     rms : list of float
         Per link, RMS residual of its members (B units).
+    weights : (n,) float or None
+        Weight of each match in its link's fit (robust refit, 0-1]; None: every member counts
+        fully (least squares).
     """
 
     labels: np.ndarray
@@ -119,6 +122,7 @@ class Segmentation:
     scene_size_b: float = 1.0
     hypotheses: list[int] = field(default_factory=list)
     rms: list[float] = field(default_factory=list)
+    weights: np.ndarray | None = None
 
     @property
     def n_links(self) -> int:
