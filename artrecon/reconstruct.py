@@ -591,6 +591,14 @@ def _articulate(points_a, points_b, background_a, background_b, dense_a, dense_b
         config=config.assign)
     lab_a = _expand(lab_a, ~drop_a)
     lab_b = _expand(lab_b, ~drop_b)
+    seg, root, anchors, lab_a, lab_b, unsupported = drop_unsupported_links(
+        seg, root, anchors, lab_a, lab_b)
+    if seg.n_links < 2:
+        raise DegenerateError(
+            f"of the {seg.n_links + len(unsupported)} links the matches form, only "
+            f"{seg.n_links} holds any of the dense surface (the others' matches are "
+            "chance pairings): the object moved as one rigid body, or its moving part was not "
+            "seen well enough; photograph it with more views or more texture")
     links = links_from_labels(dense_a, dense_b, lab_a, lab_b, seg.transforms)
     timings["assign"] = time.perf_counter() - t
     t = time.perf_counter()
@@ -609,6 +617,51 @@ def _articulate(points_a, points_b, background_a, background_b, dense_a, dense_b
     timings["joints"] = time.perf_counter() - t
     return Articulation(seg, root, anchors, lab_a, lab_b, links, tree, joints, confidence,
                         timings, points_a, points_b, guided)
+
+
+def drop_unsupported_links(seg: Segmentation, root: int | None, anchors: dict | None,
+                           labels_a: np.ndarray, labels_b: np.ndarray):
+    """Remove the links that the dense labelling gave no point of either configuration.
+
+    Every link of the object has a surface the cameras saw (its matches are features on it), and
+    the labelling offers each dense point to every link: a link that wins none is a set of
+    matches that happen to move together (chance pairings on repeated texture, seen on
+    pliers_panda: 21 matches, after sequential RANSAC split the mismatches into small "links"),
+    not a part. Left in, it has no points to say where it meets the others (the kinematic tree
+    cannot place it) and would become an invented joint. Its matches become outliers.
+
+    Returns
+    -------
+    seg, root, anchors, labels_a, labels_b
+        Renumbered (the remaining links keep their order).
+    dropped : list of int
+        The removed links, by their former numbers.
+    """
+    counts = (np.bincount(labels_a[labels_a >= 0], minlength=seg.n_links)[:seg.n_links]
+              + np.bincount(labels_b[labels_b >= 0], minlength=seg.n_links)[:seg.n_links])
+    dropped = [int(k) for k in np.flatnonzero(counts == 0)]
+    if not dropped:
+        return seg, root, anchors, labels_a, labels_b, dropped
+    if root in dropped:
+        raise ReconstructionError(f"the base link ({root}, the one the background moves with) "
+                                  "holds none of the dense surface; reconstruct again with more "
+                                  "views of the object")
+    keep = [k for k in range(seg.n_links) if k not in dropped]
+    remap = np.full(seg.n_links + 1, -1)  # the last entry maps -1 to -1
+    remap[keep] = np.arange(len(keep))
+    for k in dropped:
+        log.warning("link %d (%d matches) holds none of the dense surface of A or B: dropped, "
+                    "its matches taken for chance pairings", k, int(seg.sizes[k]))
+
+    def pick(values):
+        return [values[k] for k in keep] if values else values
+
+    seg = replace(seg, labels=remap[seg.labels], transforms=pick(seg.transforms),
+                  thresholds=pick(seg.thresholds), rms=pick(seg.rms))
+    if anchors:
+        anchors = {int(remap[k]): v for k, v in anchors.items() if k in keep}
+    root = None if root is None else int(remap[root])
+    return seg, root, anchors, remap[labels_a], remap[labels_b], dropped
 
 
 def table_free_space(points: np.ndarray, views, occluders, config: ReconstructConfig,

@@ -305,3 +305,32 @@ def test_links_that_move_alike_are_one_body_and_the_error_says_what_to_do():
     msg = str(info.value)
     assert "1 rigid link(s)" in msg and "moved as one rigid body" in msg
     assert "of the 460 matches fit no link, a link needs at least" in msg and "more views" in msg
+
+
+def test_a_link_without_dense_surface_is_dropped_and_the_rest_renumbered():
+    """A 'link' the dense labelling gives no point of A or B (a few chance pairings that moved
+    together: 21 matches on pliers_panda) is removed: its matches become outliers, the links
+    after it move up one number, and so do the labels, the anchors and the root."""
+    from artrecon.reconstruct import drop_unsupported_links
+
+    T = [Similarity(np.eye(3), np.zeros(3), 1.0),
+         Similarity(np.eye(3), np.array([0.1, 0, 0]), 1.0),
+         Similarity(np.eye(3), np.array([0, 0.1, 0]), 1.0)]
+    seg = Segmentation(labels=np.array([0, 0, 1, 1, 2, 2, -1]), transforms=T, scale=1.0,
+                       thresholds=[0.1, 0.2, 0.3], rms=[1.0, 2.0, 3.0])
+    anchors = {2: ("bg_a", "bg_b", None)}
+    lab_a, lab_b = np.array([0, 2, 2, -1]), np.array([2, 0, 0])
+    out, root, anchors, la, lb, dropped = drop_unsupported_links(seg, 2, anchors, lab_a, lab_b)
+    assert dropped == [1]
+    assert out.labels.tolist() == [0, 0, -1, -1, 1, 1, -1]
+    assert [t.translation[1] for t in out.transforms] == [0.0, 0.1]
+    assert out.thresholds == [0.1, 0.3] and out.rms == [1.0, 3.0]
+    assert root == 1 and list(anchors) == [1]
+    assert la.tolist() == [0, 1, 1, -1] and lb.tolist() == [1, 0, 0]
+    # every link holds points: nothing changes
+    same = drop_unsupported_links(seg, 0, None, np.array([0, 1, 2]), np.array([0]))
+    assert same[0] is seg and same[-1] == []
+    # the base itself without surface: refused, not renumbered away
+    from artrecon.errors import ReconstructionError
+    with pytest.raises(ReconstructionError, match="base link"):
+        drop_unsupported_links(seg, 1, None, lab_a, lab_b)
