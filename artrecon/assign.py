@@ -35,8 +35,10 @@ above. But the table is not a link: another link may rest on it or hang just abo
 moving half of scissors, whose fattened lower edge reaches the table), and a table that pulls
 every neighbour to the base pulls those too. So a table edge counts against link k only where k
 moves the point as the base does, within what the point's own cues resolve (the two fit
-thresholds plus the photo patch's width): there the point's evidence cannot decide and the
-smoothness must; elsewhere its evidence decides alone, as without the table.
+thresholds plus the photo patch's width), or where the geometric fit is silent (neither motion
+lands the point on the other configuration's surface: the inside of a cabinet that only the open
+door shows): there the point's evidence cannot decide and the smoothness must; elsewhere its
+evidence decides alone, as without the table.
 
 The geometric fit runs twice. First ``q`` need only land on B's surface; that is fooled where
 links touch or stack (the lower jaw of closed pliers under the upper one: a point of one moved by
@@ -351,9 +353,10 @@ class _Evidence:
             # Where two motions move the point less apart than its cues resolve (the two
             # predictions can both fit the same surface, each within its threshold; their photo
             # patches overlap), its evidence cannot tell them apart and the smoothness decides:
-            # there the table counts. Elsewhere the point's own evidence decides and the table
-            # stays out: it is not a link, and a link other than the base can lie on it or
-            # hang just above it (the moving blade of scissors, away from the pivot).
+            # there the table counts (and, per pass, where neither motion fits: :meth:`label`).
+            # Elsewhere the point's own evidence decides and the table stays out: it is not a
+            # link, and a link other than the base can lie on it or hang just above it (the
+            # moving blade of scissors, away from the pivot).
             for k in range(K):
                 apart = np.linalg.norm(self.moved[k] - self.moved[base], axis=1)
                 self.like_base[k] = apart < (self.threshold[k] + self.threshold[base]
@@ -378,8 +381,12 @@ class _Evidence:
         fits = self.fits(dst_labels)
         U = self.base + self.config.cost_no_fit * (~fits & fits.any(0) & ~self.hidden)
         if self.static_edges.any():  # Potts edges to the table, which moves as the base does
+            b = self.base_link
+            # the point's cues cannot tell k from the base: the motions move it alike, or the
+            # geometric fit is silent (neither lands it on the other configuration's surface)
+            alike = self.like_base | (~fits & ~fits[b])
             U = U + self.config.smoothness * self.static_edges[None, :] \
-                * (np.arange(self.K)[:, None] != self.base_link) * self.like_base
+                * (np.arange(self.K)[:, None] != b) * alike
         log.debug("assign: %d points, fit by one link %.0f%%, several %.0f%%, none %.0f%%; "
                   "patches compared %.0f%%", self.n, 100 * np.mean(fits.sum(0) == 1),
                   100 * np.mean(fits.sum(0) > 1), 100 * np.mean(fits.sum(0) == 0),
@@ -407,8 +414,8 @@ def label_points(src, src_normals, dst, transforms, residuals, match_src, match_
     surface_src, surface_dst : cameras and z-buffers of the two configurations; without them only
         the geometric fit, the match prior and the smoothness decide.
     static, base : (m, 3) points that move with link ``base`` (the table), optional: neighbours
-        in the Potts graph that count against a link only where its motion and the base's move
-        the point alike (within the point's fit thresholds and photo patch).
+        in the Potts graph that count against a link only where the point's cues cannot tell
+        it from the base (see the module's notes).
 
     Returns
     -------
@@ -438,7 +445,7 @@ def assign_dense_to_links(dense_a, dense_b, points_a, points_b, segmentation, *,
     first fitting against the other's labels of the previous one. ``static_a``/``static_b``
     ((m, 3), optional) are points of each configuration that move with link ``base`` (the table
     next to the object; the base stands on it): neighbours in the Potts graph, counted against a
-    link only where its motion and the base's move the point alike (see the module's notes).
+    link only where the point's cues cannot tell it from the base (see the module's notes).
     Deterministic.
 
     Returns

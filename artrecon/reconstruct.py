@@ -644,7 +644,9 @@ def table_points(occluders: np.ndarray | None, object_points: np.ndarray) -> np.
         return occluders
     # the object's points are the same numbers in both arrays (artrecon.configuration); if they
     # are not (occluders from elsewhere), the object's own surface would pass for the table
-    d = cKDTree(np.asarray(object_points, float)).query(occluders)[0]
+    # (only equal points matter: a tiny search bound spares the far table a full search,
+    # 0.2 instead of 17 CPU s for the 0.9 M occluders of scissors)
+    d = cKDTree(np.asarray(object_points, float)).query(occluders, distance_upper_bound=1e-12)[0]
     if np.count_nonzero(d == 0) < 0.5 * len(object_points):
         log.warning("the occluders do not hold the object's dense points; the table is left out "
                     "of the dense labelling")

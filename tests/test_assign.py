@@ -315,6 +315,14 @@ def test_table_keeps_a_thin_strip_of_the_base_under_another_link():
     assert (with_table[src[:, 2] > 0.007] == 1).mean() > 0.99
     # a table beside another base link (1) holds the strip on link 1
     assert (label_points(*args, static=table, base=1) == 1).all()
+    # motions 20 mm apart (beyond the fit thresholds), but the other configuration shows no
+    # surface there (neither motion fits, as for a surface only one configuration shows): the
+    # geometric cue is silent, the table counts again
+    far = (src, normals, dst + [0.0, 0.5, 0.0],
+           [stay, Similarity(np.eye(3), np.array([0.02, 0.0, 0.0]), 1.0)], [1e-4, 1e-4], src,
+           truth)
+    assert (label_points(*far)[strip] == 1).all()
+    assert (label_points(*far, static=table, base=0)[strip] == 0).all()
 
 
 def test_table_does_not_pull_a_link_lying_on_it_to_the_base():

@@ -15,7 +15,7 @@ from artrecon.errors import InputError
 from artrecon.files import write_ply
 from artrecon.model import ArticulatedModel
 from artrecon.procrustes import Similarity
-from artrecon.reconstruct import merge_equivalent_links, reconstruct
+from artrecon.reconstruct import merge_equivalent_links, reconstruct, table_points
 from artrecon.segment import Segmentation
 
 #: Gates on the rendered hinge (30 degrees of motion). Measured with SfM from images:
@@ -305,3 +305,20 @@ def test_links_that_move_alike_are_one_body_and_the_error_says_what_to_do():
     msg = str(info.value)
     assert "1 rigid link(s)" in msg and "moved as one rigid body" in msg
     assert "of the 460 matches fit no link, a link needs at least" in msg and "more views" in msg
+
+
+def test_table_points_are_the_occluders_less_the_object(caplog):
+    """The table for the dense labelling: the dense points the object region left out. Occluders
+    that do not hold the object's points (from elsewhere) give no table, with a warning, rather
+    than the object's own surface passing for the table."""
+    rng = np.random.default_rng(0)
+    obj = rng.uniform(0.0, 0.1, (50, 3))
+    table = np.c_[rng.uniform(-0.2, 0.3, (80, 2)), np.zeros(80)]
+    occluders = np.r_[table[:40], obj, table[40:]]
+    got = table_points(occluders, obj)
+    assert np.array_equal(got, table)
+    assert table_points(None, obj) is None
+    assert np.array_equal(table_points(occluders, obj[:0]), occluders)
+    with caplog.at_level("WARNING"):
+        assert table_points(table, obj) is None
+    assert "occluders do not hold" in caplog.text
