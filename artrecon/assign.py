@@ -24,21 +24,20 @@ k-nearest-neighbour graph of the points, minimised by alpha-expansion graph cuts
 (:mod:`artrecon.potts`), which flip a whole wrongly labelled region at once where per-point
 updates stop at its border. Symmetrically for the points of B with the inverse transforms.
 
-The table the object stands on is in that graph too, as neighbours whose label is known: the
-dense points next to the object that the object region took for the table (static, so they move
-as the base link does). Without them the Potts term is lopsided where a thin strip of the base
-lies between the table and another link (the fixed half's pivot wall under the moving half of a
-pair of pliers): the strip's only labelled neighbours are the other link's, so it flips to that
-link whatever its own evidence says (near the joint, where the motions hardly differ, it says
-little). With them, the strip's border with the table costs as much as its border with the link
-above. But the table is not a link: another link may rest on it or hang just above it (the
-moving half of scissors, whose fattened lower edge reaches the table), and a table that pulls
-every neighbour to the base pulls those too. So a table edge counts against link k only where k
-moves the point as the base does, within what the point's own cues resolve (the two fit
-thresholds plus the photo patch's width), or where the geometric fit is silent (neither motion
-lands the point on the other configuration's surface: the inside of a cabinet that only the open
-door shows): there the point's evidence cannot decide and the smoothness must; elsewhere its
-evidence decides alone, as without the table.
+The table the object stands on is in that graph too: the dense points next to the object that the
+object region took for the table (static, so they move as the base link does). Without them the
+Potts term is lopsided where a thin strip of the base lies between the table and another link (the
+fixed half's pivot wall under the moving half of a pair of pliers): the strip's only labelled
+neighbours are the other link's, so it flips to that link whatever its own evidence says (near the
+joint, where the motions hardly differ, it says little). With them, the strip's border with the
+table costs as much as its border with the link above. But the table is not a link: another link
+may rest on it or hang just above it (the moving half of scissors, whose fattened lower edge
+reaches the table), and a table that pulls every neighbour to the base pulls those too. So a table
+edge counts against link k only where k moves the point as the base does, within what the point's
+own cues resolve (the two fit thresholds plus the photo patch's width), or where the geometric fit
+is silent (neither motion lands the point on the other configuration's surface: the inside of a
+cabinet that only the open door shows): there the point's evidence cannot decide and the smoothness
+must; elsewhere its evidence decides alone, as without the table.
 
 The geometric fit runs twice. First ``q`` need only land on B's surface; that is fooled where
 links touch or stack (the lower jaw of closed pliers under the upper one: a point of one moved by
