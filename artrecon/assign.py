@@ -35,9 +35,10 @@ may rest on it or hang just above it (the moving half of scissors, whose fattene
 reaches the table), and a table that pulls every neighbour to the base pulls those too. So a table
 edge counts against link k only where k moves the point as the base does, within what the point's
 own cues resolve (the two fit thresholds plus the photo patch's width), or where the geometric fit
-is silent (neither motion lands the point on the other configuration's surface: the inside of a
-cabinet that only the open door shows): there the point's evidence cannot decide and the smoothness
-must; elsewhere its evidence decides alone, as without the table.
+is silent (neither motion lands the point on the other configuration's surface: 678 points of
+cabinet_door_only in B, low on the cabinet, where the evidence was a tie): there the point's
+evidence cannot decide and the smoothness must; elsewhere its evidence decides alone, as without
+the table.
 
 The geometric fit runs twice. First ``q`` need only land on B's surface; that is fooled where
 links touch or stack (the lower jaw of closed pliers under the upper one: a point of one moved by
