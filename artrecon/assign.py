@@ -24,6 +24,22 @@ k-nearest-neighbour graph of the points, minimised by alpha-expansion graph cuts
 (:mod:`artrecon.potts`), which flip a whole wrongly labelled region at once where per-point
 updates stop at its border. Symmetrically for the points of B with the inverse transforms.
 
+The table the object stands on is in that graph too: the dense points next to the object that the
+object region took for the table (static, so they move as the base link does). Without them the
+Potts term is lopsided where a thin strip of the base lies between the table and another link (the
+fixed half's pivot wall under the moving half of a pair of pliers): the strip's only labelled
+neighbours are the other link's, so it flips to that link whatever its own evidence says (near the
+joint, where the motions hardly differ, it says little). With them, the strip's border with the
+table costs as much as its border with the link above. But the table is not a link: another link
+may rest on it or hang just above it (the moving half of scissors, whose fattened lower edge
+reaches the table), and a table that pulls every neighbour to the base pulls those too. So a table
+edge counts against link k only where k moves the point as the base does, within what the point's
+own cues resolve (the two fit thresholds plus the photo patch's width), or where the geometric fit
+is silent (neither motion lands the point on the other configuration's surface: 678 points of
+cabinet_door_only in B, low on the cabinet, where the evidence was a tie): there the point's
+evidence cannot decide and the smoothness must; elsewhere its evidence decides alone, as without
+the table.
+
 The geometric fit runs twice. First ``q`` need only land on B's surface; that is fooled where
 links touch or stack (the lower jaw of closed pliers under the upper one: a point of one moved by
 the other's transform lands on the other). Then, with both configurations labelled, hypothesis k
@@ -232,6 +248,35 @@ def _graph(X, k, radius):
     return ((G + G.T) > 0).astype(np.float64)
 
 
+def _static_edges(X, S, k, radius) -> np.ndarray:
+    """(n,) float: how many neighbours each point of X has among the static points S, by the rule
+    of :func:`_graph` on X and S together (an edge where either end is among the other's k
+    nearest, up to ``radius`` x X's median point spacing). They add to X's own graph, whose
+    edges they leave as they are."""
+    n = len(X)
+    if S is None or len(S) == 0 or n < 2:
+        return np.zeros(n)
+    tree = cKDTree(X)
+    reach = radius * float(np.median(tree.query(X, k=2)[0][:, 1]))
+    S = np.asarray(S, float)
+    S = S[tree.query(S, distance_upper_bound=reach)[0] < reach]  # only these can be neighbours
+    if len(S) == 0:
+        return np.zeros(n)
+    both = cKDTree(np.vstack([X, S]))
+    rows, cols = [], []
+    for start, pts in ((0, X), (n, S)):
+        d, i = both.query(pts, k=k + 1)
+        own = np.repeat(np.arange(start, start + len(pts)), k)
+        hit = ((d[:, 1:] < reach) & ((i[:, 1:] >= n) != (start >= n))).ravel()
+        ends = np.sort(np.c_[own[hit], i[:, 1:].ravel()[hit]], axis=1)  # (object, static)
+        rows.append(ends[:, 0])
+        cols.append(ends[:, 1] - n)
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    E = coo_matrix((np.ones(len(r)), (r, c)), shape=(n, len(S))).tocsr()
+    E.data[:] = 1.0  # an edge found from both ends counts once
+    return np.asarray(E.sum(axis=1)).ravel()
+
+
 class _Evidence:
     """The cues for labelling the points of one configuration (src) against the other (dst).
 
@@ -241,9 +286,16 @@ class _Evidence:
 
     def __init__(self, src, src_normals, dst, transforms, residuals, match_src, match_labels,
                  surface_src: _Surface | None, surface_dst: _Surface | None,
-                 config: AssignConfig):
+                 config: AssignConfig, static: np.ndarray | None = None,
+                 base: int | None = None):
         K, n = len(transforms), len(src)
         self.K, self.n, self.dst, self.config = K, n, dst, config
+        #: the link the static points (the table) move with, each point's edges to them, and
+        #: (K, n) where hypothesis k moves the point as the base would, within what its own cues
+        #: resolve (there the table's edges count against k)
+        self.base_link = base
+        self.static_edges = np.zeros(n)
+        self.like_base = np.zeros((K, n), bool)
         good = match_labels >= 0
         if not good.any():
             raise ValueError("assign: no segmented match to anchor the links (every match is "
@@ -264,6 +316,7 @@ class _Evidence:
         #: hypothesis k's counterpart is hidden from every camera of the other configuration
         #: (behind what they saw, never in front of it): its lack of fit says nothing
         self.hidden = np.zeros((K, n), bool)
+        patch_width = np.zeros(n)  # the photo patch's width on the surface (none: no patch)
         if surface_src is not None and surface_dst is not None:
             vis_src, _ = surface_src.status(src, config.depth_tolerance, floor)
             best_src = surface_src.best_view(vis_src, src, src_normals)
@@ -274,6 +327,7 @@ class _Evidence:
             step = config.patch_step_px * depth / np.array(
                 [surface_src.views[max(c, 0)].K[0, 0] for c in best_src])
             G = _patch_grid(src, src_normals, np.nan_to_num(step), config.patch_half)
+            patch_width = 2 * config.patch_half * np.nan_to_num(step)
             patch_src = surface_src.sample(best_src, G)
             for k, (T, q) in enumerate(zip(transforms, self.moved, strict=True)):
                 vis, bad = surface_dst.status(q, config.depth_tolerance, floor)
@@ -293,6 +347,20 @@ class _Evidence:
         prior = config.cost_match * np.exp(-d_match / (config.match_reach * src_spacing))
         self.base = U + prior[None, :] * (np.arange(K)[:, None] != self.nearest[None, :])
         self.graph = _graph(src, config.neighbours, config.neighbour_radius)
+        if base is not None:
+            self.static_edges = _static_edges(src, static, config.neighbours,
+                                              config.neighbour_radius)
+            # Where two motions move the point less apart than its cues resolve (the two
+            # predictions can both fit the same surface, each within its threshold; their photo
+            # patches overlap), its evidence cannot tell them apart and the smoothness decides:
+            # there the table counts (and, per pass, where neither motion fits: :meth:`label`).
+            # Elsewhere the point's own evidence decides and the table stays out: it is not a
+            # link, and a link other than the base can lie on it or hang just above it (the
+            # moving blade of scissors, away from the pivot).
+            for k in range(K):
+                apart = np.linalg.norm(self.moved[k] - self.moved[base], axis=1)
+                self.like_base[k] = apart < (self.threshold[k] + self.threshold[base]
+                                             + patch_width)
 
     def fits(self, dst_labels: np.ndarray | None = None) -> np.ndarray:
         """(K, n) bool: hypothesis k puts the point on the other configuration's surface (on
@@ -312,6 +380,13 @@ class _Evidence:
             return np.zeros(self.n, int)
         fits = self.fits(dst_labels)
         U = self.base + self.config.cost_no_fit * (~fits & fits.any(0) & ~self.hidden)
+        if self.static_edges.any():  # Potts edges to the table, which moves as the base does
+            b = self.base_link
+            # the point's cues cannot tell k from the base: the motions move it alike, or the
+            # geometric fit is silent (neither lands it on the other configuration's surface)
+            alike = self.like_base | (~fits & ~fits[b])
+            U = U + self.config.smoothness * self.static_edges[None, :] \
+                * (np.arange(self.K)[:, None] != b) * alike
         log.debug("assign: %d points, fit by one link %.0f%%, several %.0f%%, none %.0f%%; "
                   "patches compared %.0f%%", self.n, 100 * np.mean(fits.sum(0) == 1),
                   100 * np.mean(fits.sum(0) > 1), 100 * np.mean(fits.sum(0) == 0),
@@ -323,7 +398,8 @@ class _Evidence:
 def label_points(src, src_normals, dst, transforms, residuals, match_src, match_labels, *,
                  dst_labels: np.ndarray | None = None,
                  surface_src: _Surface | None = None, surface_dst: _Surface | None = None,
-                 config: AssignConfig = AssignConfig()) -> np.ndarray:
+                 config: AssignConfig = AssignConfig(), static: np.ndarray | None = None,
+                 base: int | None = None) -> np.ndarray:
     """Link label of every point of one configuration (one pass).
 
     Parameters
@@ -337,13 +413,16 @@ def label_points(src, src_normals, dst, transforms, residuals, match_src, match_
         The other configuration's labels: then hypothesis k fits only on dst's points of link k.
     surface_src, surface_dst : cameras and z-buffers of the two configurations; without them only
         the geometric fit, the match prior and the smoothness decide.
+    static, base : (m, 3) points that move with link ``base`` (the table), optional: neighbours
+        in the Potts graph that count against a link only where the point's cues cannot tell
+        it from the base (see the module's notes).
 
     Returns
     -------
     (n,) int, a link per point.
     """
     return _Evidence(src, src_normals, dst, transforms, residuals, match_src, match_labels,
-                     surface_src, surface_dst, config).label(dst_labels)
+                     surface_src, surface_dst, config, static, base).label(dst_labels)
 
 
 def assign_dense_to_links(dense_a, dense_b, points_a, points_b, segmentation, *,
@@ -351,7 +430,10 @@ def assign_dense_to_links(dense_a, dense_b, points_a, points_b, segmentation, *,
                           views_b: list[CameraView] | None = None,
                           occluders_a: np.ndarray | None = None,
                           occluders_b: np.ndarray | None = None,
-                          config: AssignConfig = AssignConfig()):
+                          config: AssignConfig = AssignConfig(),
+                          base: int | None = None,
+                          static_a: np.ndarray | None = None,
+                          static_b: np.ndarray | None = None):
     """Link label of every dense point of A and of B.
 
     ``dense_a``/``dense_b`` are :class:`artrecon.dense.DensePoints`; ``points_a``/``points_b``
@@ -360,7 +442,11 @@ def assign_dense_to_links(dense_a, dense_b, points_a, points_b, segmentation, *,
     geometric fit; ``occluders_*`` are the points the z-buffers are built from (default: the
     dense points; pass the dense points before the background was removed, so that the table
     and walls occlude too). ``config.passes`` passes label both configurations, each after the
-    first fitting against the other's labels of the previous one. Deterministic.
+    first fitting against the other's labels of the previous one. ``static_a``/``static_b``
+    ((m, 3), optional) are points of each configuration that move with link ``base`` (the table
+    next to the object; the base stands on it): neighbours in the Potts graph, counted against a
+    link only where the point's cues cannot tell it from the base (see the module's notes).
+    Deterministic.
 
     Returns
     -------
@@ -383,9 +469,10 @@ def assign_dense_to_links(dense_a, dense_b, points_a, points_b, segmentation, *,
     # A's and B's cues and labels are independent within a pass: side by side
     ev_a, ev_b = side_by_side(
         lambda: _Evidence(dense_a.points, dense_a.normals, dense_b.points, Ts, rms, points_a,
-                          labels, surf_a, surf_b, config),
+                          labels, surf_a, surf_b, config, static_a, base),
         lambda: _Evidence(dense_b.points, dense_b.normals, dense_a.points, inv,
-                          rms / segmentation.scale, points_b, labels, surf_b, surf_a, config))
+                          rms / segmentation.scale, points_b, labels, surf_b, surf_a, config,
+                          static_b, base))
     lab_a = lab_b = None
     for _ in range(config.passes):
         lab_a, lab_b = side_by_side(partial(ev_a.label, lab_b), partial(ev_b.label, lab_a))

@@ -16,6 +16,7 @@ import pytest
 from artrecon.assign import (
     AssignConfig,
     CameraView,
+    _Evidence,
     _graph,
     _Surface,
     assign_dense_to_links,
@@ -280,3 +281,74 @@ def test_an_unreadable_view_is_refused_not_skipped(tmp_path):
         views_from_sfm(sfm)
     (tmp_path / "b.png").write_bytes((tmp_path / "a.png").read_bytes())
     assert len(views_from_sfm(sfm)) == 2
+
+
+def test_table_keeps_a_thin_strip_of_the_base_under_another_link():
+    """A wall (x along it, z up), points 2 mm apart: its lowest two rows (z < 5 mm) are the base
+    (link 0), the nine rows above another link (1); the table is below. Both links' motions
+    slide the wall along itself, so only each point's nearest match (a weak prior) says which
+    link it is on (they move it 6 mm apart, less than the two fit thresholds: near the joint).
+    Without the table in the graph the strip's only other-labelled neighbours are link 1's and
+    the Potts term flips it; with the table as neighbours that move as the base does, the strip
+    keeps its label."""
+    rng = np.random.default_rng(0)
+    X, Z = np.meshgrid(np.arange(0.0, 0.2, 0.002), np.arange(1, 12) * 0.002)
+    jitter = rng.normal(0.0, 0.0002, (X.size, 2))  # breaks the grid's ties among neighbours
+    src = np.c_[X.ravel() + jitter[:, 0], np.zeros(X.size), Z.ravel() + jitter[:, 1]]
+    truth = (src[:, 2] > 0.005).astype(int)
+    Xd, Zd = np.meshgrid(np.arange(-0.1, 0.3, 0.002), np.arange(1, 12) * 0.002)
+    dst = np.c_[Xd.ravel(), np.zeros(Xd.size), Zd.ravel()]  # the same wall, longer
+    stay = Similarity(np.eye(3), np.zeros(3), 1.0)
+    slide = Similarity(np.eye(3), np.array([0.006, 0.0, 0.0]), 1.0)
+    tx = np.arange(-0.02, 0.22, 0.002)
+    table = np.c_[tx, np.zeros(len(tx)), rng.normal(0.0, 0.0002, len(tx))]
+    normals = np.tile([0.0, -1.0, 0.0], (len(src), 1))
+    # each point's own label as its nearest match: the prior, 0.3, against 0.7 per cut edge
+    args = (src, normals, dst, [stay, slide], [1e-4, 1e-4], src, truth)
+    without = label_points(*args)
+    with_table = label_points(*args, static=table, base=0)
+    strip = truth == 0
+    assert (without[strip] == 1).all()
+    assert (with_table[strip] == 0).all()
+    # the border may shift by a row (the strip's own graph reaches up further than down), and a
+    # corner where the table juts out may follow it; the rest stays where it was
+    assert (with_table[src[:, 2] > 0.007] == 1).mean() > 0.99
+    # a table beside another base link (1) holds the strip on link 1
+    assert (label_points(*args, static=table, base=1) == 1).all()
+    # motions 20 mm apart (beyond the fit thresholds), but the other configuration shows no
+    # surface there (neither motion fits, as for a surface only one configuration shows): the
+    # geometric cue is silent, the table counts again
+    far = (src, normals, dst + [0.0, 0.5, 0.0],
+           [stay, Similarity(np.eye(3), np.array([0.02, 0.0, 0.0]), 1.0)], [1e-4, 1e-4], src,
+           truth)
+    assert (label_points(*far)[strip] == 1).all()
+    assert (label_points(*far, static=table, base=0)[strip] == 0).all()
+
+
+def test_table_does_not_pull_a_link_lying_on_it_to_the_base():
+    """A low wall on the table, two rows of points 2 mm apart: the base (link 0) for x < 0.1 m,
+    another link (1) beyond, which slid 30 mm away from the wall between the configurations
+    (far more than its fit thresholds: its own cues tell the two motions apart). Every point of
+    link 1 has table neighbours; were they to count as the base's whatever the motions, their
+    cut edges would outweigh the failed fit of the base's motion and pull link 1 to the base.
+    They count only where the motions are alike, so link 1 keeps its label."""
+    rng = np.random.default_rng(1)
+    X, Z = np.meshgrid(np.arange(0.0, 0.2, 0.002), np.array([1, 2]) * 0.002)
+    jitter = rng.normal(0.0, 0.0002, (X.size, 2))
+    src = np.c_[X.ravel() + jitter[:, 0], np.zeros(X.size), Z.ravel() + jitter[:, 1]]
+    truth = (src[:, 0] >= 0.1).astype(int)
+    stay = Similarity(np.eye(3), np.zeros(3), 1.0)
+    away = Similarity(np.eye(3), np.array([0.0, 0.03, 0.0]), 1.0)
+    dst = np.r_[src[truth == 0], away.apply(src[truth == 1])]
+    tx, ty = np.meshgrid(np.arange(-0.02, 0.22, 0.002), np.arange(-0.01, 0.011, 0.002))
+    table = np.c_[tx.ravel(), ty.ravel(), rng.normal(0.0, 0.0002, tx.size)]
+    normals = np.tile([0.0, -1.0, 0.0], (len(src), 1))
+    args = (src, normals, dst, [stay, away], [1e-4, 1e-4], src, truth)
+    labels = label_points(*args, static=table, base=0)
+    assert (labels == truth).mean() > 0.98  # the border may shift by a column
+    assert (labels[src[:, 0] > 0.105] == 1).all()
+    # the failure this prevents: the table counted against link 1 everywhere
+    ev = _Evidence(*args, None, None, AssignConfig(), table, 0)
+    assert (ev.static_edges[truth == 1] > 0).mean() > 0.9 and not ev.like_base[1].any()
+    ev.like_base[:] = True
+    assert (ev.label()[truth == 1] == 0).mean() > 0.9

@@ -15,7 +15,7 @@ from artrecon.errors import InputError
 from artrecon.files import write_ply
 from artrecon.model import ArticulatedModel
 from artrecon.procrustes import Similarity
-from artrecon.reconstruct import merge_equivalent_links, reconstruct
+from artrecon.reconstruct import merge_equivalent_links, reconstruct, table_points
 from artrecon.segment import Segmentation
 
 #: Gates on the rendered hinge (30 degrees of motion). Measured with SfM from images:
@@ -334,3 +334,20 @@ def test_a_link_without_dense_surface_is_dropped_and_the_rest_renumbered():
     from artrecon.errors import ReconstructionError
     with pytest.raises(ReconstructionError, match="base link"):
         drop_unsupported_links(seg, 1, None, lab_a, lab_b)
+
+
+def test_table_points_are_the_occluders_less_the_object(caplog):
+    """The table for the dense labelling: the dense points the object region left out. Occluders
+    that do not hold the object's points (from elsewhere) give no table, with a warning, rather
+    than the object's own surface passing for the table."""
+    rng = np.random.default_rng(0)
+    obj = rng.uniform(0.0, 0.1, (50, 3))
+    table = np.c_[rng.uniform(-0.2, 0.3, (80, 2)), np.zeros(80)]
+    occluders = np.r_[table[:40], obj, table[40:]]
+    got = table_points(occluders, obj)
+    assert np.array_equal(got, table)
+    assert table_points(None, obj) is None
+    assert np.array_equal(table_points(occluders, obj[:0]), occluders)
+    with caplog.at_level("WARNING"):
+        assert table_points(table, obj) is None
+    assert "occluders do not hold" in caplog.text
