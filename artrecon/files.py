@@ -126,14 +126,15 @@ def check_output_path(out: str | Path, inputs, *, flag: str = "--out",
 
 
 def check_output_dir(out_dir: str | Path, inputs=(), *, overwrite: bool = False,
-                     marker: str | None = None, flag: str = "--out",
+                     marker: str | tuple[str, ...] | None = None, flag: str = "--out",
                      example: str | Path | None = None) -> Path:
     """Check a folder a command will create (or, with ``overwrite``, replace whole).
 
     :func:`check_output_path` first; then an existing ``out_dir`` is refused when it is a file
     (never replaced by a folder), when ``overwrite`` is not given, or when it is a non-empty
-    folder without ``marker`` (a file every result of this command holds, e.g. ``model.json``):
-    ``--overwrite`` replaces only a result of the same command, never a folder of other files.
+    folder without ``marker`` (a file every result of this command holds, e.g. ``model.json``;
+    several: any one of them): ``--overwrite`` replaces only a result of the same command, never
+    a folder of other files.
 
     Returns
     -------
@@ -158,10 +159,13 @@ def check_output_dir(out_dir: str | Path, inputs=(), *, overwrite: bool = False,
         if not overwrite:
             raise InputError(f"output folder {out_dir} exists; choose another {flag} or pass "
                              "--overwrite (overwrite=True) to replace it")
-        if marker is not None and any(out_dir.iterdir()) and not (out_dir / marker).exists():
-            raise InputError(f"{flag} {out_dir} is a folder that holds no {marker}, so no result "
-                             f"of this command; --overwrite replaces only such results (whole), "
-                             f"never other files: choose a new folder for {flag}")
+        markers = (marker,) if isinstance(marker, str) else tuple(marker or ())
+        if (markers and any(out_dir.iterdir())
+                and not any((out_dir / m).exists() for m in markers)):
+            raise InputError(f"{flag} {out_dir} is a folder that holds no "
+                             f"{' or '.join(markers)}, so no result of this command; "
+                             "--overwrite replaces only such results (whole), never other "
+                             f"files: choose a new folder for {flag}")
     return out_dir
 
 
