@@ -97,6 +97,94 @@ def inputs_digest(image_set: ImageSet, intrinsics: Intrinsics | None, poses, set
     return h.hexdigest()
 
 
+def stage_settings(sfm_config: SfMConfig | None = None, dense_config: DenseConfig | None = None,
+                   region_config: RegionConfig | None = None) -> dict:
+    """The settings the stage depends on, as its record holds them (``settings``) and
+    :func:`inputs_digest` hashes them (default: each stage's defaults)."""
+    return {"sfm": asdict(sfm_config or SfMConfig()),
+            "dense": asdict(dense_config or DenseConfig()),
+            "region": asdict(region_config or RegionConfig())}
+
+
+def check_reusable(folder: str | Path, image_set: ImageSet, intrinsics: Intrinsics | None,
+                   poses, settings: dict, seed: int, *, which: str = "",
+                   restart: str = "run from the start") -> dict:
+    """Refuse a folder that is not a finished stage of exactly these inputs and settings.
+
+    :func:`reconstruct_configuration` quietly recomputes such a folder; a run told to start
+    after this stage (``artrecon reconstruct --from model``) must not, so it asks here first.
+
+    Parameters
+    ----------
+    folder : str or Path
+    image_set, intrinsics, poses, settings, seed
+        What this run would compute the stage from (``settings`` as :func:`stage_settings`).
+    which : str
+        ``"A"`` or ``"B"``, for messages.
+    restart : str
+        What the user should do instead, for messages.
+
+    Returns
+    -------
+    dict
+        The folder's record.
+
+    Raises
+    ------
+    InputError
+        The folder holds no finished stage (no record), a record of another format, one made
+        from other inputs or settings (the message names what differs), or one whose images
+        are no longer where the record says.
+    """
+    folder = Path(folder)
+    record_path = folder / "configuration.json"
+    if not record_path.is_file():
+        raise InputError(f"configuration {which}: {folder} holds no finished configuration stage "
+                         f"(no configuration.json); {restart}")
+    record = read_json(record_path)
+    if record.get("format") != FORMAT:
+        raise InputError(f"{record_path}: format {record.get('format')!r}, this artrecon reads "
+                         f"{FORMAT!r}; {restart}")
+    if record.get("inputs_digest") != inputs_digest(image_set, intrinsics, poses, settings,
+                                                    seed):
+        differs = "; ".join(_differences(record, image_set, poses, settings, seed))
+        raise InputError(f"configuration {which}: {folder} was made from other inputs or "
+                         f"settings than this run's ({differs}), so it is not reused; "
+                         f"{restart}, or give the inputs and settings it was made with")
+    image_dir = Path(record["image_dir"])
+    if not image_dir.is_dir():
+        raise InputError(f"{record_path}: its images were in {image_dir}, which is not a folder "
+                         f"now (moved or deleted?); the later stages read them again: put them "
+                         f"back, or {restart}")
+    return record
+
+
+def _differences(record: dict, image_set: ImageSet, poses, settings: dict, seed: int
+                 ) -> list[str]:
+    """What a record names otherwise than this run (for :func:`check_reusable`'s message)."""
+    out = []
+    if record.get("artrecon_version") != __version__:
+        out.append(f"artrecon {record.get('artrecon_version')} made it, this is {__version__}")
+    if record.get("seed") != seed:
+        out.append(f"seed {record.get('seed')} there, {seed} now")
+    cameras = "given poses (held fixed)" if poses is not None else "SfM from the images"
+    if record.get("cameras") != cameras:
+        out.append(f"cameras: {record.get('cameras')} there, {cameras} now")
+    # the settings as the record holds them (JSON: tuples are lists)
+    now = json.loads(json.dumps(settings, default=str))
+    there = record.get("settings") or {}
+    for stage in sorted(set(now) | set(there)):
+        a, b = there.get(stage) or {}, now.get(stage) or {}
+        out += [f"{stage}.{k}: {a.get(k)!r} there, {b.get(k)!r} now"
+                for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+    if record.get("num_images") != len(image_set.names):
+        out.append(f"{record.get('num_images')} images there, {len(image_set.names)} now")
+    elif record.get("image_dir") != os.path.abspath(image_set.image_dir):
+        out.append(f"images from {record.get('image_dir')} there, "
+                   f"{os.path.abspath(image_set.image_dir)} now")
+    return out or ["the images' contents, the intrinsics or the camera poses"]
+
+
 #: Given intrinsics whose focal lengths differ from a capture's cameras.json by more than this
 #: fraction are named as the cause when the SfM cameras disagree with the capture's poses.
 INTRINSICS_MISMATCH = 0.02
@@ -172,8 +260,7 @@ def _reconstruct_configuration(image_set, out_dir: Path, intrinsics, poses, sfm_
     sfm_config = sfm_config or SfMConfig()
     dense_config = dense_config or DenseConfig()
     region_config = region_config or RegionConfig()
-    settings = {"sfm": asdict(sfm_config), "dense": asdict(dense_config),
-                "region": asdict(region_config)}
+    settings = stage_settings(sfm_config, dense_config, region_config)
     digest = inputs_digest(image_set, intrinsics, poses, settings, seed)
     record_path = out_dir / "configuration.json"
     if record_path.is_file():
