@@ -1,4 +1,4 @@
-"""Command line: ``artrecon reconstruct DIR_A DIR_B --out DIR``,
+"""Command line: ``artrecon reconstruct DIR_A DIR_B --out DIR [--from STAGE] [--to STAGE]``,
 ``artrecon register MODEL_DIR --camera-poses POSES.json [--image IMG --flange-pose POSE.json]``
 and ``artrecon export MODEL --format mjcf|urdf|glb|ply --out PATH``.
 
@@ -6,12 +6,17 @@ Exit status 0 on success, 2 on bad input (also when nothing moved between the tw
 artrecon.errors.NoMotionError), 1 when a stage fails (also when the evidence for a joint
 is too weak: artrecon.errors.WeakEvidenceError), 130 when interrupted; the message says what to
 try, without a traceback.
+
+``reconstruct --to configurations`` stops after the per-configuration stage (``DIR/a``,
+``DIR/b``) and prints the command that continues it (``--from model``, the same inputs and
+options); see artrecon.reconstruct.STAGES.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import shlex
 import sys
 
 from artrecon.errors import ArtreconError, InputError, NoMotionError
@@ -42,7 +47,18 @@ def _parser() -> argparse.ArgumentParser:
                    "thick (about 5x the dense stage's time), or sfm.matching=exhaustive")
     r.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     r.add_argument("--overwrite", action="store_true", help="replace an existing output folder "
-                   "(only a previous result: a folder holding model.json)")
+                   "(only a previous result: a folder holding model.json or the configurations "
+                   "of --to configurations); with --from model: replace its model, keep its "
+                   "configurations")
+    r.add_argument("--from", dest="from_stage", default="configurations",
+                   metavar="{configurations,model}",
+                   help="first stage to run: 'configurations' (default: from the images) or "
+                   "'model' (start from OUT/a and OUT/b of an earlier run of the same images, "
+                   "options and seed, e.g. one stopped with --to configurations; they are "
+                   "checked, not recomputed)")
+    r.add_argument("--to", dest="to_stage", default="model", metavar="{configurations,model}",
+                   help="last stage to run: 'model' (default) or 'configurations' (stop after "
+                   "each configuration's SfM, dense points and object region: OUT/a, OUT/b)")
     r.add_argument("--quiet", action="store_true", help="no progress bars, warnings only")
     r.set_defaults(handler=_run_reconstruct)
     from artrecon.export import add_export_parser
@@ -88,7 +104,8 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
         model = reconstruct(args.dir_a, args.dir_b, intrinsics=args.intrinsics,
                             poses=True if args.use_poses else None, out_dir=args.out,
                             seed=args.seed, config=config, overwrite=args.overwrite,
-                            progress=not args.quiet)
+                            progress=not args.quiet, from_stage=args.from_stage,
+                            to_stage=args.to_stage)
     except (InputError, NoMotionError) as exc:  # NoMotionError: A and B are one configuration
         print(f"artrecon: error: {exc}", file=sys.stderr)
         return 2
@@ -102,6 +119,11 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
         print(f"artrecon: interrupted; {args.out} is as it was (run again to start over)",
               file=sys.stderr)
         return 130
+    if model is None:  # stopped after the configurations
+        print(f"wrote {args.out}/a and {args.out}/b: the cameras, dense points and object "
+              "region of each configuration (stage 'configurations'); continue with:\n  "
+              + _continue_command(args))
+        return 0
     print(f"wrote {args.out}: {len(model.links)} links, {len(model.joints)} joints")
     cams = model.metadata.get("intrinsics") or {}
     if any(c.get("source") not in (None, "given") for c in cams.values()):
@@ -118,6 +140,26 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
                   f"{c['child']['inliers']}, motion {c['motion']['snr']:.0f} x noise, axis "
                   f"spread {c['bootstrap']['axis_spread_deg']:.2f} deg")
     return 0
+
+
+def _continue_command(args: argparse.Namespace) -> str:
+    """The command that runs the rest of a run stopped with ``--to``: its inputs and options,
+    ``--from`` the next stage."""
+    from artrecon.reconstruct import STAGES
+
+    names = list(STAGES)
+    argv = ["artrecon", "reconstruct", args.dir_a, args.dir_b, "--out", args.out]
+    if args.intrinsics is not None:
+        argv += ["--intrinsics", args.intrinsics]
+    if args.use_poses:
+        argv.append("--use-poses")
+    for item in args.settings:
+        argv += ["--set", item]
+    if args.seed != 0:
+        argv += ["--seed", str(args.seed)]
+    if args.quiet:
+        argv.append("--quiet")
+    return shlex.join(argv + ["--from", names[names.index(args.to_stage) + 1]])
 
 
 if __name__ == "__main__":

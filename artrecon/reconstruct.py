@@ -26,8 +26,29 @@ Output folder (written whole or not at all: built in a temporary sibling folder,
     OUT/links/link_<k>.ply            dense oriented points of each link (model frame)
     OUT/a/sparse/0, OUT/b/sparse/0    the SfM models in COLMAP's layout (+ database.db, colmap.log)
     OUT/a/dense.ply, OUT/b/dense.ply  the object's dense points of each configuration (own frame)
+    OUT/a/configuration.json, ...     the per-configuration stage's record and its other files
+                                      (the folder contract of artrecon.configuration)
     OUT/matches.npz                   the 3D-3D matches (points_a, points_b, ids, votes, labels,
                                       background_a, background_b)
+
+Running part of it (:data:`STAGES`; ``from_stage``/``to_stage``, the command's ``--from`` and
+``--to``). The folder holds the result of two stages, and a run may stop after the first or
+start at the second::
+
+    configurations   images -> OUT/a, OUT/b (each: SfM, dense points, object region; written
+                     side by side, the record configuration.json last)
+    model            OUT/a, OUT/b -> OUT/matches.npz, OUT/links/, OUT/model.json
+
+``to_stage="configurations"`` publishes a folder holding OUT/a and OUT/b only.
+``from_stage="model"`` starts from such a folder (or a whole result, with ``overwrite``): each
+configuration's record must name the same images, intrinsics, poses, settings, seed and artrecon
+version as this run (else InputError naming what differs; they are never recomputed quietly),
+and the folder is published again whole, the configurations copied and the model added. The
+model is the one the whole run gives, bit for bit (tests/test_stages.py): the whole run reads
+configuration B back from its folder too, and A's folder holds what A's stage returned
+(artrecon.configuration). Nothing finer is a
+stage: a configuration's SfM and dense points share one record, so a folder whose dense stage
+failed holds no result a later run could check.
 """
 
 from __future__ import annotations
@@ -51,7 +72,13 @@ from artrecon.confidence import (
     check_motion,
     explain_segmentation_failure,
 )
-from artrecon.configuration import Configuration, load_configuration, reconstruct_configuration
+from artrecon.configuration import (
+    Configuration,
+    check_reusable,
+    load_configuration,
+    reconstruct_configuration,
+    stage_settings,
+)
 from artrecon.dense import DenseConfig, RegionConfig
 from artrecon.errors import (
     DegenerateError,
@@ -68,7 +95,13 @@ from artrecon.features import (
     point_descriptors,
     tracked_features,
 )
-from artrecon.files import check_output_dir, make_work_dir, publish_dir, write_ply
+from artrecon.files import (
+    check_output_dir,
+    check_output_path,
+    make_work_dir,
+    publish_dir,
+    write_ply,
+)
 from artrecon.freespace import FreeSpaceConfig, seen_through_table, support_plane
 from artrecon.geometry import rotation_angle
 from artrecon.io import (
@@ -95,6 +128,21 @@ from artrecon.settings import apply_settings
 from artrecon.sfm import SfMConfig, camera_summary
 
 log = logging.getLogger(__name__)
+
+#: The stages a run can start at or stop after (:func:`reconstruct`'s ``from_stage`` and
+#: ``to_stage``, the command's ``--from`` and ``--to``), in order, with what each leaves in the
+#: output folder for the next. Only these two: the output folder keeps nothing finer that a
+#: later run could check and start from (a configuration's SfM and dense points are one record,
+#: :mod:`artrecon.configuration`; matches, links and joints are saved together).
+STAGES = {
+    "configurations": "OUT/a and OUT/b: each configuration's cameras (SfM), dense points and "
+                      "object region",
+    "model": "OUT/matches.npz, OUT/links/, OUT/model.json: matches across A and B, links, "
+             "joints",
+}
+#: Files that tell a folder written by :func:`reconstruct` (whole, or stopped after the
+#: configurations) from any other folder.
+OUTPUT_MARKERS = ("model.json", "a/configuration.json", "b/configuration.json")
 
 #: Two links whose relative motion moves the second one's matches by less than this fraction
 #: of the scene size, with a relative rotation under MERGE_MAX_ROTATION, are one rigid body
@@ -772,9 +820,15 @@ def _resolve_inputs(images, intrinsics, poses_arg, which: str):
 
 def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None, seed: int = 0,
                 config: ReconstructConfig = ReconstructConfig(), overwrite: bool = False,
-                progress: bool = True, jobs: int = 2,
-                configurations: tuple | None = None) -> ArticulatedModel:
+                progress: bool = True, jobs: int = 2, configurations: tuple | None = None,
+                from_stage: str = "configurations", to_stage: str = "model"
+                ) -> ArticulatedModel | None:
     """Articulated model of an object from two image sets, one per configuration.
+
+    The whole run by default; ``from_stage`` and ``to_stage`` run part of it (:data:`STAGES`):
+    ``to_stage="configurations"`` writes ``out_dir/a`` and ``out_dir/b`` and stops, and
+    ``from_stage="model"`` starts from those of an existing ``out_dir`` and adds the model to
+    it. The two halves give the model the whole run gives (same inputs, settings and seed).
 
     Parameters
     ----------
@@ -787,12 +841,14 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
         None (default, the method): cameras from the images alone. True: use each folder's
         ``cameras.json`` poses (the arm's forward kinematics) and only triangulate.
     out_dir : str or Path, optional
-        Where to write the model, link PLYs and SfM models (see the module docstring). Nothing is
-        kept when None.
+        Where to write the model, link PLYs and SfM models (see the module docstring), whole or
+        not at all. Nothing is kept when None (then only the whole run).
     seed : int
     config : ReconstructConfig
     overwrite : bool
-        Replace an existing ``out_dir``.
+        Replace an existing ``out_dir`` (only a folder this function wrote: one holding
+        ``model.json`` or the configurations' records). With ``from_stage="model"``: replace the
+        model of an ``out_dir`` that holds one (its configurations are kept).
     progress : bool
         tqdm bars on stderr.
     jobs : int
@@ -801,17 +857,24 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
     configurations : (folder_a, folder_b), optional
         Folders of finished per-configuration stages of these image sets (e.g. written by the
         harness while it captured): reused when their records name the same inputs and
-        settings, recomputed otherwise.
+        settings, recomputed otherwise. Not with ``from_stage="model"``.
+    from_stage, to_stage : {"configurations", "model"}
+        The first and the last stage to run (:data:`STAGES`). ``from_stage="model"`` needs the
+        ``out_dir`` of an earlier run of these inputs, settings and seed (stopped after the
+        configurations, or whole); their records are checked, never recomputed.
 
     Returns
     -------
-    ArticulatedModel
-        Links with dense oriented points (model frame = configuration A's SfM frame), joints.
+    ArticulatedModel or None
+        Links with dense oriented points (model frame = configuration A's SfM frame), joints;
+        None when the run stops after the configurations.
 
     Raises
     ------
     InputError
-        Bad folders, images or camera files.
+        Bad folders, images or camera files; an unknown stage, ``from_stage`` after
+        ``to_stage``, or (``from_stage="model"``) an ``out_dir`` without finished
+        configurations of these inputs and settings (the message says what differs).
     ReconstructionError, DegenerateError
         A stage failed (the message says which and what to try). WeakEvidenceError (a
         ReconstructionError): a joint's evidence is too weak to give its axis
@@ -821,6 +884,13 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
         ``metadata["pose_agreement"]``).
     """
     t_all = time.perf_counter()
+    first, last = _stage_range(from_stage, to_stage)
+    if (first, last) != (0, len(STAGES) - 1) and out_dir is None:
+        raise InputError(f"a run from stage {from_stage!r} to {to_stage!r} needs an output "
+                         "folder (out_dir): the stages meet there")
+    if first > 0 and configurations is not None:
+        raise InputError(f"from stage {from_stage!r}, the configurations are those of out_dir; "
+                         "give configurations= only to a run from the start")
     # One value for both sets, or a pair (a (3, 3) nested list has 3 rows, never 2).
     pair = intrinsics if isinstance(intrinsics, (tuple, list)) and len(intrinsics) == 2 \
         else (intrinsics, intrinsics)
@@ -833,24 +903,80 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
             lambda: _resolve_inputs(images_b, pair[1], poses_pair[1], "B"))
     check_distinct(set_a, set_b)
     if out_dir is not None:
-        out_dir = check_output_dir(out_dir, [set_a.root, set_a.image_dir, set_b.root,
-                                             set_b.image_dir], overwrite=overwrite,
-                                   marker="model.json", example=set_a.root.parent / "model")
+        out_dir = _check_output(out_dir, [set_a.root, set_a.image_dir, set_b.root,
+                                          set_b.image_dir], overwrite, from_stage,
+                                example=set_a.root.parent / "model")
+    if first > 0:  # the configurations of out_dir, exactly as this run would compute them
+        settings = stage_settings(config.sfm, config.dense, config.region)
+        restart = ("start from the configurations instead (without --from, "
+                   "from_stage='configurations'), which recomputes them")
+        for key, iset, intr, known in (("a", set_a, intr_a, poses_a),
+                                       ("b", set_b, intr_b, poses_b)):
+            check_reusable(out_dir / key, iset, intr, known, settings, seed,
+                           which=key.upper(), restart=restart)
+        configurations = (out_dir / "a", out_dir / "b")
+    if out_dir is not None:
         work = make_work_dir(out_dir)  # also removes those of interrupted runs
     else:
         work = Path(tempfile.mkdtemp(prefix="artrecon-"))
     try:
         model = _run(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work, seed, config,
-                     progress, jobs, configurations)
-        model.metadata["timings"]["total"] = time.perf_counter() - t_all
+                     progress, jobs, configurations, reuse_only=first > 0,
+                     stop_after_configurations=last == 0)
+        if model is not None:
+            model.metadata["timings"]["total"] = time.perf_counter() - t_all
         if out_dir is not None:
-            model.save(work / "model.json")
+            if model is not None:
+                model.save(work / "model.json")
             publish_dir(work, out_dir)
             log.info("wrote %s", out_dir)
     finally:
         if work.exists():
             shutil.rmtree(work, ignore_errors=True)
     return model
+
+
+def _stage_range(from_stage: str, to_stage: str) -> tuple[int, int]:
+    """Indices in :data:`STAGES` of the first and the last stage to run (InputError for an
+    unknown stage or a first stage after the last)."""
+    names = list(STAGES)
+    for flag, name in (("--from", from_stage), ("--to", to_stage)):
+        if name not in STAGES:
+            listing = "; ".join(f"{k} (writes {v})" for k, v in STAGES.items())
+            raise InputError(f"{flag} {name}: no such stage. The stages, in order: {listing}")
+    first, last = names.index(from_stage), names.index(to_stage)
+    if first > last:
+        raise InputError(f"--from {from_stage} comes after --to {to_stage}, so there is nothing "
+                         f"to run; the stages in order: {', '.join(names)}")
+    return first, last
+
+
+def _check_output(out_dir, inputs, overwrite: bool, from_stage: str, example) -> Path:
+    """The output folder of a run from ``from_stage``: a new folder (or, with ``overwrite``, an
+    earlier result) for a run from the start; for a later start, an existing folder of an
+    earlier run, holding no model unless ``overwrite`` (its configurations are checked by the
+    caller, against this run's inputs)."""
+    out_dir = Path(out_dir)
+    check_output_path(out_dir, inputs, example=example)
+    holds_model = (out_dir / "model.json").exists()
+    if from_stage == "configurations":
+        if (out_dir.is_dir() and not overwrite and not holds_model
+                and (out_dir / "a" / "configuration.json").is_file()):
+            raise InputError(f"output folder {out_dir} exists and holds the configurations of a "
+                             "run stopped after them (--to configurations): continue it with "
+                             "--from model, or pass --overwrite to start it over")
+        return check_output_dir(out_dir, inputs, overwrite=overwrite, marker=OUTPUT_MARKERS,
+                                example=example)
+    if out_dir.is_symlink() or not out_dir.is_dir():
+        raise InputError(f"--from {from_stage}: {out_dir} is not a folder; --out must name the "
+                         "output folder of an earlier run of these images (whole, or stopped "
+                         "with --to configurations): run without --from to start from the "
+                         "beginning")
+    if holds_model and not overwrite:
+        raise InputError(f"--from {from_stage}: {out_dir} holds a model already (model.json); "
+                         "pass --overwrite to replace it (its configurations are kept), or "
+                         "choose another --out")
+    return out_dir
 
 
 def prepare_configuration(images, out_dir, *, intrinsics=None, poses=None, seed: int = 0,
@@ -882,7 +1008,11 @@ def _configuration_in_process(*args) -> None:
 
 def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, poses_a, poses_b,
          work: Path, seed: int, config: ReconstructConfig, progress: bool, jobs: int = 2,
-         configurations: tuple | None = None) -> ArticulatedModel:
+         configurations: tuple | None = None, reuse_only: bool = False,
+         stop_after_configurations: bool = False) -> ArticulatedModel | None:
+    """The stages into ``work``: the configurations (computed, or reused from copies of
+    ``configurations``; only read back when ``reuse_only``, the caller having checked them),
+    then, unless ``stop_after_configurations``, the model (returned)."""
     timings: dict[str, float] = {}
     folders = {"a": work / "a", "b": work / "b"}
     if configurations is not None:  # finished per-configuration folders: start from copies
@@ -892,7 +1022,9 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     args = {"a": (set_a, folders["a"], intr_a, poses_a, config, seed, "A"),
             "b": (set_b, folders["b"], intr_b, poses_b, config, seed, "B")}
     confs: dict[str, Configuration] = {}
-    if jobs > 1:
+    if reuse_only:
+        confs = {key: load_configuration(folder) for key, folder in folders.items()}
+    elif jobs > 1:
         # B in a second (spawned) process while this one does A: the two are independent
         with workers.pool(1) as pool:
             # the worker ignores Ctrl-C; this process stops it (one line, no worker traceback)
@@ -903,10 +1035,14 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
             except KeyboardInterrupt:
                 workers.stop(pool)
                 raise
+        if stop_after_configurations:
+            return None
         confs["b"] = load_configuration(folders["b"])
     else:
         for key in ("a", "b"):
             confs[key] = _configuration(*args[key], progress)
+    if stop_after_configurations:
+        return None
     for key, conf in confs.items():
         timings[f"sfm_{key}"] = conf.record["timings"]["sfm"]
         timings[f"dense_{key}"] = conf.record["timings"]["dense"]

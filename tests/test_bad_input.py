@@ -298,6 +298,78 @@ def out_under_a_file(t):
     return _args(*_pair(t), t / "file" / "o")
 
 
+# running part of the run (--from / --to, artrecon.reconstruct.STAGES)
+@case("--from sfm", "no such stage", "configurations (writes", "model (writes")
+def stage_unknown(t):
+    return _args(*_pair(t), t / "o", "--from", "sfm")
+
+
+@case("--to dense", "no such stage")
+def stage_unknown_to(t):
+    return _args(*_pair(t), t / "o", "--to", "dense")
+
+
+@case("--from model comes after --to configurations", "nothing to run")
+def stage_from_after_to(t):
+    return _args(*_pair(t), t / "o", "--from", "model", "--to", "configurations")
+
+
+@case("--from model", "is not a folder", "without --from")
+def stage_from_model_without_a_folder(t):
+    return _args(*_pair(t), t / "o", "--from", "model")
+
+
+@case("configuration A", "no configuration.json", "without --from")
+def stage_from_model_without_configurations(t):
+    (t / "o").mkdir()
+    return _args(*_pair(t), t / "o", "--from", "model")
+
+
+def _configuration_records(t: Path, out: Path, **changes) -> None:
+    """Records of finished configurations in ``out/a`` and ``out/b`` (the rest of their folders
+    absent: the check reads only the record), made with ``changes``."""
+    from artrecon import __version__
+    from artrecon.configuration import FORMAT, stage_settings
+
+    for c in ("a", "b"):
+        record = {"format": FORMAT, "inputs_digest": "0" * 64, "artrecon_version": __version__,
+                  "seed": 0, "cameras": "SfM from the images", "num_images": 6,
+                  "image_dir": str((t / c).absolute()),
+                  "settings": json.loads(json.dumps(stage_settings())), **changes}
+        (out / c).mkdir(parents=True)
+        (out / c / "configuration.json").write_text(json.dumps(record))
+
+
+@case("configuration A", "other inputs or settings", "seed 1 there, 0 now",
+      "dense.downsample: 2 there, 1 now", "without --from")
+def stage_from_model_of_other_settings(t):
+    pair = _pair(t)
+    _configuration_records(t, t / "o", seed=1)
+    return _args(*pair, t / "o", "--from", "model", "--set", "dense.downsample=1")
+
+
+@case("configuration A", "other inputs or settings", "the images' contents")
+def stage_from_model_of_other_images(t):
+    pair = _pair(t)
+    _configuration_records(t, t / "o")
+    return _args(*pair, t / "o", "--from", "model")
+
+
+@case("--from model", "holds a model already", "--overwrite")
+def stage_from_model_over_a_model(t):
+    pair = _pair(t)
+    _configuration_records(t, t / "o")
+    (t / "o" / "model.json").write_text("{}")
+    return _args(*pair, t / "o", "--from", "model")
+
+
+@case("holds the configurations", "--from model", "--overwrite")
+def stage_from_the_start_over_configurations(t):
+    pair = _pair(t)
+    _configuration_records(t, t / "o")
+    return _args(*pair, t / "o")
+
+
 @pytest.mark.parametrize("name", sorted(CASES))
 def test_reconstruct_refuses(tmp_path, capsys, monkeypatch, name):
     """Exit 2, a message naming the problem (and what to do), nothing written, nothing changed
