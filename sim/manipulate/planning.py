@@ -588,14 +588,17 @@ def rank(candidates: list[GraspCandidate], est: JointEstimate, prefer_hidden: bo
 
 
 def plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, amount: float,
-                   q_start: np.ndarray, seed: int, moving_links=()) -> tuple[Plan | None, str]:
+                   q_start: np.ndarray, seed: int, moving_links=(), rolls_deg=None
+                   ) -> tuple[Plan | None, str]:
     """IK of the grasp, pre-grasp and approach, and of every waypoint of the motion by
-    ``amount`` along ``est``, for each roll; contacts checked in the plan's world (along the
-    motion, the model links ``moving_links`` move with the gripper and are no obstacle); every
-    arm joint kept :attr:`PlanningConfig.joint_limit_margin` inside its limits. The plan with
-    the shortest travel, or None and why."""
+    ``amount`` along ``est``, for each roll (``rolls_deg``, default
+    :attr:`PlanningConfig.rolls_deg`); contacts checked in the plan's world (along the motion,
+    the model links ``moving_links`` move with the gripper and are no obstacle); every arm joint
+    kept :attr:`PlanningConfig.joint_limit_margin` inside its limits. The plan with the shortest
+    travel, or None and why."""
+    rolls = pw.config.rolls_deg if rolls_deg is None else tuple(rolls_deg)
     with _limits_narrowed(pw.kin, pw.config.joint_limit_margin):
-        return _plan_candidate(pw, cand, est, amount, q_start, seed, moving_links)
+        return _plan_candidate(pw, cand, est, amount, q_start, seed, moving_links, rolls)
 
 
 def _kink(q_path: np.ndarray, window: int = 3) -> tuple[float, int] | None:
@@ -631,7 +634,8 @@ def _limits_narrowed(kin, margin: float):
 
 
 def _plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, amount: float,
-                    q_start: np.ndarray, seed: int, moving_links) -> tuple[Plan | None, str]:
+                    q_start: np.ndarray, seed: int, moving_links, rolls
+                    ) -> tuple[Plan | None, str]:
     kin, cfg = pw.kin, pw.config
     n_way = max(cfg.min_waypoints, int(np.ceil(abs(amount) / (
         cfg.waypoint_angle if est.type == "revolute" else cfg.waypoint_distance))))
@@ -644,7 +648,7 @@ def _plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate,
     if not reach.success:
         return None, (f"out of reach: the grasp frame gets no closer than "
                       f"{1e3 * reach.position_error:.0f} mm")
-    for roll in cfg.rolls_deg:
+    for roll in rolls:
         T_g = grasp_frame(cand.point, cand.normal, roll, cfg.grasp_standoff)
         ik = kin.solve_ik(T_g, "grasp", reach.q, restarts=2, seed=seed)
         if not ik.success:
