@@ -64,6 +64,23 @@ def test_a_point_on_the_rim_of_its_face_is_no_candidate():
     assert not P._surrounded(np.array([0.019, 0.019, 0.0]), n, pts, nrm, tree, cfg)
 
 
+def test_a_candidates_normal_is_its_surfaces_not_its_points():
+    """Point normals tilted at random by up to ~20 deg on a flat face (the dense stage's noise on
+    scissors' rings): the candidate's normal is the face's within a degree, and a fitted normal
+    keeps the side the points face."""
+    rng = np.random.default_rng(0)
+    pts, _ = _face()
+    tilt = rng.normal(0.0, 0.2, (len(pts), 2))
+    nrm = np.c_[tilt, np.ones(len(pts))]
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    tree, cfg = cKDTree(pts), PlanningConfig()
+    mean = nrm[np.linalg.norm(pts, axis=1) < 0.003].mean(axis=0)
+    n = P._plane_normal(np.zeros(3), mean / np.linalg.norm(mean), pts, nrm, tree, cfg)
+    assert np.degrees(np.arccos(n[2])) < 1.0
+    down = P._plane_normal(np.zeros(3), -mean / np.linalg.norm(mean), pts, -nrm, tree, cfg)
+    assert down[2] < -0.9998
+
+
 def test_candidates_clear_of_the_fixed_parts_come_first():
     est = JointEstimate("revolute", [0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
     up = np.array([1.0, 0.0, 0.0])

@@ -511,12 +511,13 @@ def gate_tolerance_estimates(tj) -> list:
 
 def manipulation_reference_stage(scene: Scene, true_joint: str, run: dict, q_start,
                                  cache_root: Path, scene_hash: str) -> tuple[dict, dict, bool]:
-    """Scoring only, after the motion: the same grasp point and the same requested motion, but
-    along the scene's TRUE joint ``true_joint`` (the force the joint itself asks for: friction,
-    damping, inertia, the arm's own dynamics), and along the true joint made as wrong as the
-    accuracy gates allow (:func:`gate_tolerance_estimates`: the force an axis the gates accept
-    may cost, through the stiff grasp). The manipulation's force limit is the larger of a
-    multiple of the first and the worst of the others. Cached; a reference that cannot be
+    """Scoring only, after the motion: the same grasp (point, normal, and the gripper's roll:
+    the same approach) and the same requested motion, but along the scene's TRUE joint
+    ``true_joint`` (the force the joint itself asks for: friction, damping, inertia, the arm's
+    own dynamics), and along the true joint made as wrong as the accuracy gates allow
+    (:func:`gate_tolerance_estimates`: the force an axis the gates accept may cost, through the
+    stiff grasp). The manipulation's force limit is the larger of a multiple of the first and
+    the worst of the others. Cached; a reference that cannot be
     planned or grasped is recorded (``error``)."""
     from sim import cache
     from sim.evaluate.stages import _manipulate_sources
@@ -527,13 +528,15 @@ def manipulation_reference_stage(scene: Scene, true_joint: str, run: dict, q_sta
     sense = 1.0 if float(np.dot(tj.axis, run["estimate"]["axis"])) >= 0 else -1.0
     amount = sense * float(run["requested"])
     inputs = {"scene_hash": scene_hash, "joint": true_joint, "amount": amount,
-              "grasp": [run["grasp_point"], run["grasp_normal"]], "q_start": list(q_start),
+              "grasp": [run["grasp_point"], run["grasp_normal"], run.get("grasp_roll_deg")],
+              "q_start": list(q_start),
               "code": _manipulate_sources(), "tolerance": 1}
 
     def one(e) -> dict:
         try:
             res = manipulate(scene, e, amount, grasp_point=run["grasp_point"],
-                             grasp_normal=run["grasp_normal"], q_start=q_start,
+                             grasp_normal=run["grasp_normal"],
+                             grasp_roll_deg=run.get("grasp_roll_deg"), q_start=q_start,
                              joint=true_joint)
             return {"peak_force": res.peak_force, "rms_force": res.rms_force,
                     "peak_torque": res.peak_torque, "grasp_lost": res.grasp_lost,

@@ -69,7 +69,8 @@ def _descends(model, body: int, root: int) -> bool:
 
 def manipulate(scene, estimate: JointEstimate, amount: float, *, registered=None,
                model_joint: int | None = None, candidates=None, grasp_point=None,
-               grasp_normal=None, q_start=None, prefer_hidden: bool = True,
+               grasp_normal=None, grasp_roll_deg: float | None = None, q_start=None,
+               prefer_hidden: bool = True,
                record_every: float | None = None, seed: int = 0, world: World | None = None,
                joint: str | None = None, planning: PlanningWorld | None = None,
                grip: GripConfig | None = None,
@@ -93,6 +94,9 @@ def manipulate(scene, estimate: JointEstimate, amount: float, *, registered=None
         Grasp points to choose from instead of the default ones.
     grasp_point, grasp_normal : (3,) float, optional
         Grasp exactly here (no ranking); the normal defaults to +z.
+    grasp_roll_deg : float, optional
+        With ``grasp_point``: the gripper's roll about the approach (deg) instead of the best of
+        :attr:`PlanningConfig.rolls_deg` (the same grasp as an earlier plan's).
     q_start : (n,) float, optional
         The arm's current configuration (rail first); default its home keyframe. Visibility of
         grasp points is judged from the wrist camera at this pose.
@@ -142,7 +146,8 @@ def manipulate(scene, estimate: JointEstimate, amount: float, *, registered=None
         n = np.array([0.0, 0.0, 1.0]) if grasp_normal is None else np.asarray(grasp_normal, float)
         (cand,) = planning.classify_visibility(
             q_start, [GraspCandidate(np.asarray(grasp_point, float), n / np.linalg.norm(n))])
-        plan, why = plan_candidate(planning, cand, estimate, amount, q_start, seed, moving)
+        plan, why = plan_candidate(planning, cand, estimate, amount, q_start, seed, moving,
+                                   None if grasp_roll_deg is None else (grasp_roll_deg,))
         if plan is None:
             raise ManipulationError(f"the given grasp point cannot be grasped and moved: {why}")
         summary = {"total": 1, "hidden": int(cand.hidden), "usable": 1,

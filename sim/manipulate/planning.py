@@ -60,8 +60,14 @@ class PlanningConfig:
     on scissors' 3 mm blades mixed top and side normals: 20 candidates, 3 usable, none
     graspable; 6 mm: 103, 20 usable)"""
     min_normal_agreement: float = 0.8
-    """a candidate's normal is the mean of its voxel's normals; shorter than this (they
-    disagree: an edge or noise) and the voxel is no candidate"""
+    """a voxel's mean normal shorter than this (its normals disagree: an edge or noise) and the
+    voxel is no candidate"""
+    normal_radius: float = 0.01
+    """a candidate's normal is the normal of the plane fitted to the link's points within this
+    distance (m) that face like the voxel's mean normal: the mean of a few noisy point normals
+    tilted the approach (scissors' rings, flat on the table, had voxel normals up to 14 deg off
+    the vertical, and one fingertip dipped into the ring beside: no grasp among 39 candidates;
+    with the fitted plane, the blade grasped at its tip)"""
     support_radius: float = 0.015
     """a candidate must lie on a surface of the model: at least ``min_support`` of the link's
     points within this distance (m) of it (a few stray points of a reconstruction -- points off
@@ -226,8 +232,9 @@ def voxel_centres(points: np.ndarray, size: float, min_points: int = 1) -> np.nd
 def model_grasp_candidates(model, joint: int, config: PlanningConfig = PlanningConfig()
                            ) -> list[GraspCandidate]:
     """Grasp candidates on the child link of the registered model's joint ``joint``: one per
-    voxel of its points (the point nearest the voxel's mean), with the voxel's mean normal;
-    voxels whose normals disagree (edges, noise) are left out.
+    voxel of its points (the point nearest the voxel's mean), with the normal of the surface
+    around it (:func:`_plane_normal`); voxels whose normals disagree (edges, noise) are left
+    out.
 
     The link's points cover its hidden sides too (points seen only in configuration B are
     brought to A by the link's motion): a candidate may lie where no camera sees it now.
@@ -251,10 +258,27 @@ def model_grasp_candidates(model, joint: int, config: PlanningConfig = PlanningC
         p = pts[g][np.argmin(np.linalg.norm(pts[g] - c, axis=1))]
         if len(tree.query_ball_point(p, config.support_radius)) < config.min_support:
             continue
-        if not _surrounded(p, n / length, pts, nrm, tree, config):
+        n = _plane_normal(p, n / length, pts, nrm, tree, config)
+        if not _surrounded(p, n, pts, nrm, tree, config):
             continue
-        out.append(GraspCandidate(p, n / length))
+        out.append(GraspCandidate(p, n))
     return out
+
+
+def _plane_normal(p, n, pts, nrm, tree, config: PlanningConfig) -> np.ndarray:
+    """The normal at ``p`` of the plane fitted (least squares) to the link's points within
+    :attr:`PlanningConfig.normal_radius` whose normals face like ``n``, turned to ``n``'s side;
+    ``n`` itself when fewer than three such points span a plane."""
+    near = np.asarray(tree.query_ball_point(p, config.normal_radius), dtype=int)
+    near = near[nrm[near] @ n > config.min_normal_agreement]
+    if len(near) < 3:
+        return n
+    q = pts[near] - pts[near].mean(axis=0)
+    w, v = np.linalg.eigh(q.T @ q)
+    if w[1] <= 0:
+        return n
+    fitted = v[:, 0]
+    return fitted if float(fitted @ n) >= 0 else -fitted
 
 
 def _surrounded(p, n, pts, nrm, tree, config: PlanningConfig) -> bool:
@@ -564,14 +588,17 @@ def rank(candidates: list[GraspCandidate], est: JointEstimate, prefer_hidden: bo
 
 
 def plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, amount: float,
-                   q_start: np.ndarray, seed: int, moving_links=()) -> tuple[Plan | None, str]:
+                   q_start: np.ndarray, seed: int, moving_links=(), rolls_deg=None
+                   ) -> tuple[Plan | None, str]:
     """IK of the grasp, pre-grasp and approach, and of every waypoint of the motion by
-    ``amount`` along ``est``, for each roll; contacts checked in the plan's world (along the
-    motion, the model links ``moving_links`` move with the gripper and are no obstacle); every
-    arm joint kept :attr:`PlanningConfig.joint_limit_margin` inside its limits. The plan with
-    the shortest travel, or None and why."""
+    ``amount`` along ``est``, for each roll (``rolls_deg``, default
+    :attr:`PlanningConfig.rolls_deg`); contacts checked in the plan's world (along the motion,
+    the model links ``moving_links`` move with the gripper and are no obstacle); every arm joint
+    kept :attr:`PlanningConfig.joint_limit_margin` inside its limits. The plan with the shortest
+    travel, or None and why."""
+    rolls = pw.config.rolls_deg if rolls_deg is None else tuple(rolls_deg)
     with _limits_narrowed(pw.kin, pw.config.joint_limit_margin):
-        return _plan_candidate(pw, cand, est, amount, q_start, seed, moving_links)
+        return _plan_candidate(pw, cand, est, amount, q_start, seed, moving_links, rolls)
 
 
 def _kink(q_path: np.ndarray, window: int = 3) -> tuple[float, int] | None:
@@ -607,7 +634,8 @@ def _limits_narrowed(kin, margin: float):
 
 
 def _plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, amount: float,
-                    q_start: np.ndarray, seed: int, moving_links) -> tuple[Plan | None, str]:
+                    q_start: np.ndarray, seed: int, moving_links, rolls
+                    ) -> tuple[Plan | None, str]:
     kin, cfg = pw.kin, pw.config
     n_way = max(cfg.min_waypoints, int(np.ceil(abs(amount) / (
         cfg.waypoint_angle if est.type == "revolute" else cfg.waypoint_distance))))
@@ -620,7 +648,7 @@ def _plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate,
     if not reach.success:
         return None, (f"out of reach: the grasp frame gets no closer than "
                       f"{1e3 * reach.position_error:.0f} mm")
-    for roll in cfg.rolls_deg:
+    for roll in rolls:
         T_g = grasp_frame(cand.point, cand.normal, roll, cfg.grasp_standoff)
         ik = kin.solve_ik(T_g, "grasp", reach.q, restarts=2, seed=seed)
         if not ik.success:
