@@ -55,6 +55,15 @@ KNOWN_MISSES: dict[tuple[str, str], str] = {
 #: code.
 NOT_REMEASURED: frozenset[str] = frozenset()
 
+#: {(scene, gate): reason} of the gates a scene passes on one machine and misses on another,
+#: with the figures of each: plain xfails (a pass is reported as XPASS, a miss as XFAIL; the
+#: main job says FAIL wherever it misses). The same code, seed and package versions give
+#: different figures on CPUs with different vector units (numpy's and OpenBLAS's kernels and
+#: OpenCV's dispatch: AVX-512 on one machine of this kind, not on another; the renders are the
+#: same), and where a scene's figure sits near its limit the verdict follows the CPU. Measured:
+#: CI's run of b54bd20 (2026-11-25) and the main job on an AVX-512 machine (2026-11-26).
+MACHINE_DEPENDENT: dict[tuple[str, str], str] = {}
+
 _RESULTS: dict[str, dict] = {}
 
 
@@ -111,14 +120,27 @@ def test_the_gates_run_the_main_jobs_defaults():
 
 
 def gate_params(names, known_misses: dict[tuple[str, str], str],
-                not_remeasured: frozenset[str] = frozenset()) -> list:
+                not_remeasured: frozenset[str] = frozenset(),
+                machine_dependent: dict[tuple[str, str], str] | None = None) -> list:
     """(name, gate) for every gate of every name; a known miss as a strict xfail with its
     reason (also used by test_author_gates); for a scene in ``not_remeasured`` a plain xfail
-    (its last figure predates a change that may have fixed it: a pass is reported, not failed)."""
-    return [pytest.param(n, g, marks=pytest.mark.xfail(strict=n not in not_remeasured,
-                                                       reason=known_misses[(n, g)]))
-            if (n, g) in known_misses else pytest.param(n, g)
-            for n in names for g in gates.GATE_NAMES]
+    (its last figure predates a change that may have fixed it: a pass is reported, not failed);
+    a gate of ``machine_dependent`` (missed on one machine, passed on another) a plain xfail
+    with the figures of both."""
+    machine_dependent = machine_dependent or {}
+    out = []
+    for n in names:
+        for g in gates.GATE_NAMES:
+            if (n, g) in known_misses:
+                mark = pytest.mark.xfail(strict=n not in not_remeasured,
+                                         reason=known_misses[(n, g)])
+            elif (n, g) in machine_dependent:
+                mark = pytest.mark.xfail(strict=False, reason=machine_dependent[(n, g)])
+            else:
+                out.append(pytest.param(n, g))
+                continue
+            out.append(pytest.param(n, g, marks=mark))
+    return out
 
 
 def assert_gate(name: str, result: dict, gate: str) -> None:
@@ -130,7 +152,8 @@ def assert_gate(name: str, result: dict, gate: str) -> None:
         assert result["error"] is None
 
 
-@pytest.mark.parametrize(("name", "gate"), gate_params(SCENES, KNOWN_MISSES, NOT_REMEASURED))
+@pytest.mark.parametrize(("name", "gate"), gate_params(SCENES, KNOWN_MISSES, NOT_REMEASURED,
+                                                      MACHINE_DEPENDENT))
 def test_gate(name, gate, out_dir):
     """One gate of one scene, as the main job's verdict judges it."""
     assert_gate(name, _result(name, out_dir), gate)
