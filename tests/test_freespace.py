@@ -11,7 +11,13 @@ import numpy as np
 import pytest
 
 from artrecon.assign import CameraView
-from artrecon.freespace import FreeSpaceConfig, Plane, seen_through_table, support_plane
+from artrecon.freespace import (
+    FreeSpaceConfig,
+    Plane,
+    seen_through_table,
+    support_plane,
+    table_mosaic,
+)
 
 F, W, H = 400.0, 320, 240
 SLAB = np.array([[-0.06, -0.008, 0.0], [0.06, 0.008, 0.008]])  # min, max corner (m)
@@ -117,6 +123,40 @@ def test_floating_points_go_and_the_surface_stays(scene):
     drop = seen_through_table(X, views, plane, FreeSpaceConfig())
     assert drop[floating].mean() > 0.8, drop[floating].mean()
     assert drop[~floating].mean() < 0.02, drop[~floating].mean()
+
+
+def test_the_mosaic_knows_only_the_table_the_views_agree_on(scene):
+    """Under the slab no view sees the table: the views show different parts of the slab there,
+    their median is no table colour and the cells are not known. The open table beside it is
+    known, in the table's own colours."""
+    X = np.r_[scene["surface"], scene["floating"]]
+    plane = Plane(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, -0.002]))
+    mosaic = table_mosaic(X, scene["views"], plane)
+    G = mosaic.grid_points()
+    x, y = G[..., 0], G[..., 1]
+    under = (np.abs(x) < 0.05) & (np.abs(y) < 0.005)
+    beside = (np.abs(x) < 0.08) & (np.abs(y) > 0.02) & (np.abs(y) < 0.04)
+    assert under.sum() > 500 and beside.sum() > 2000
+    assert mosaic.known[under].mean() < 0.05, mosaic.known[under].mean()
+    assert mosaic.known[beside].mean() > 0.99, mosaic.known[beside].mean()
+    err = np.abs(mosaic.colour - _texture(x, y, 1)).sum(-1)[beside]
+    assert np.percentile(err, 99) < 6.0, np.percentile(err, 99)
+
+
+def test_views_meeting_unknown_table_do_not_keep_a_floating_point(scene):
+    """A point floating beside the slab: the views from the far side see it in front of the
+    slab, and their rays through it meet the table under the slab, which no view shows. They
+    say nothing about the point (the cells there are not known), so the share of the views that
+    saw the table through it is taken over the others: about half or more, not diluted below a
+    quarter by the views that could not tell."""
+    views = scene["views"]
+    X = np.r_[scene["surface"], scene["floating"]]
+    floating = np.r_[np.zeros(len(scene["surface"]), bool), np.ones(len(scene["floating"]),
+                                                                       bool)]
+    plane = Plane(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, -0.002]))
+    drop = seen_through_table(X, views, plane, FreeSpaceConfig(min_share=0.5))
+    assert drop[floating].mean() > 0.85, drop[floating].mean()
+    assert not drop[~floating].any()
 
 
 def test_nothing_dropped_without_a_plane_or_colour(scene):
