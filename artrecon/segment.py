@@ -87,6 +87,10 @@ class SegmentationConfig:
     selection_factor: float = 2.0
     """The runs are compared by their residuals truncated at this x the runs' median member
     residual (tight: among equally large link sets, the one that fits its matches best)."""
+    covariances: bool = True
+    """Refit the links' motions with the matches' triangulation covariances when they are known
+    (:func:`artrecon.reconstruct.robust_refit`, :mod:`artrecon.uncertainty`); False: isotropic
+    (every direction of every match alike)."""
 
 
 @dataclass
@@ -112,6 +116,10 @@ class Segmentation:
     weights : (n,) float or None
         Weight of each match in its link's fit (robust refit, 0-1]; None: every member counts
         fully (least squares).
+    precisions : (n, 3, 3) float or None
+        Weight matrix of each match in its link's fit when the fit knew the matches' point
+        covariances (:func:`artrecon.uncertainty.robust_gls_transforms`: its weight times the
+        inverse covariance of its residual, B units); None: the fit was isotropic (``weights``).
     """
 
     labels: np.ndarray
@@ -123,6 +131,7 @@ class Segmentation:
     hypotheses: list[int] = field(default_factory=list)
     rms: list[float] = field(default_factory=list)
     weights: np.ndarray | None = None
+    precisions: np.ndarray | None = None
 
     @property
     def n_links(self) -> int:

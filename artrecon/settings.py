@@ -150,6 +150,7 @@ RANGES: dict[str, Range | Choice] = {
     "segmentation.min_links": Range(1, 10_000, "links (1 accepts a single rigid body)"),
     "segmentation.restarts": Range(1, 10_000, "runs"),
     "segmentation.selection_factor": Range(0, 1000, "times the median residual", **_OPEN),
+    "segmentation.covariances": Range(0, 1, "0 or 1"),
     # --- joints (artrecon.joints.JointConfig)
     "joints.revolute_min_angle": Range(0, math.pi / 2, "radians", **_OPEN),
     "joints.adjacency_distance": Range(0, 100, "a fraction of the scene size", **_OPEN),
