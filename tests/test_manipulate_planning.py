@@ -146,3 +146,60 @@ def test_the_feed_forward_model_has_no_contacts_nor_welds(flag):
     bit = int(getattr(mujoco.mjtDisableBit, flag))
     assert run._inv_model.opt.disableflags & bit
     assert not world.model.opt.disableflags & bit  # the physics keeps its contacts
+
+
+def _box_surface(centre, half, step=0.002):
+    """Points on the surface of an axis-aligned box, every ``step``, with outward normals."""
+    pts, nrm = [], []
+    for ax in range(3):
+        u, v = [k for k in range(3) if k != ax]
+        gu = np.arange(-half[u], half[u] + 1e-9, step)
+        gv = np.arange(-half[v], half[v] + 1e-9, step)
+        a, b = (g.ravel() for g in np.meshgrid(gu, gv))
+        for sign in (-1.0, 1.0):
+            p = np.zeros((a.size, 3))
+            p[:, ax], p[:, u], p[:, v] = sign * half[ax], a, b
+            n = np.zeros((a.size, 3))
+            n[:, ax] = sign
+            pts.append(p + centre)
+            nrm.append(n)
+    return np.vstack(pts), np.vstack(nrm)
+
+
+def test_the_fingers_straddle_a_handle_rather_than_rest_on_it():
+    """A handle (a bar 16 mm high and 10 cm long, across cabinet_door_only's door) grasped on
+    its front face: with the gripper rolled by 135 deg the finger pads rest on the bar's edges,
+    3 mm above the model's surface (where the true surface lies further out, as at a handle's
+    edges the reconstruction rounds, they press into it: the grasp cabinet_door_only lost at
+    1% of its turn, fingers along its handle); rolled by 90 deg the fingers are either side of
+    the bar and touch nothing. The plan takes the roll whose gripper touches nothing, though
+    the other's travel is shorter."""
+    from artrecon.model import ArticulatedModel, Joint, Link
+
+    world = build_world(load_scene("cabinet_door_only"))
+    handle, hn = _box_surface(np.array([0.142, 0.06, 0.555]), np.array([0.006, 0.05, 0.008]))
+    door, dn = _box_surface(np.array([0.114, 0.0, 0.556]), np.array([0.006, 0.137, 0.0925]),
+                            step=0.004)
+    top, tn = _box_surface(np.array([0.0, 0.0, 0.764]), np.array([0.12, 0.15, 0.006]),
+                           step=0.004)
+    links = [Link(points=p, match_indices=np.full(len(p), -1), normals=n, name=name)
+             for p, n, name in ((top, tn, "carcass"),
+                                (np.vstack([door, handle]), np.vstack([dn, hn]), "door"))]
+    hinge = Joint("revolute", np.array([0.0, 0.0, -1.0]), np.array([0.12, -0.138, 0.55]),
+                  parent=0, child=1, state_b=np.deg2rad(30.0), name="hinge")
+    pw = P.PlanningWorld.from_model(world, ArticulatedModel(links=links, joints=[hinge],
+                                                            scale_known=True))
+    est = JointEstimate("revolute", hinge.axis_direction, hinge.axis_point)
+    cand = GraspCandidate(np.array([0.148, 0.06, 0.555]), np.array([1.0, 0.0, 0.0]))
+    q0 = fresh_data(world).qpos[world.qidx]
+
+    def plan(rolls):
+        p, why = P.plan_candidate(pw, cand, est, np.deg2rad(30.0), q0, 0, {1}, rolls)
+        assert p is not None, why
+        return p
+
+    across, diagonal = plan((90.0,)), plan((135.0,))
+    assert across.gripper_contacts == 0 and diagonal.gripper_contacts > 0
+    travel = [float(np.sum(np.abs(p.q_pre - q0))) for p in (across, diagonal)]
+    assert travel[1] < travel[0]
+    assert plan((135.0, 90.0)).roll_deg == 90.0
