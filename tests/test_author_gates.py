@@ -31,22 +31,22 @@ _RESULTS: dict[str, dict] = {}
 
 #: {(object, gate): reason} of the gates an imported object misses at the default configuration,
 #: with the figure measured; strict xfails, as in test_gates: the day one passes, its entry must
-#: go. Empty: at 847ccaa both objects pass every gate on the 2-core machine (chest: axes 0.03 and
+#: go. Empty: at 09052e6 both objects pass every gate on the 2-core machine (chest: axes 0.03 and
 #: 0.00 deg, segmentation 0.974, manipulation 30.0 of 30.0 deg; mm_cabinet: axis 0.08 deg,
 #: segmentation 0.993, door 29.9 of 30.0 deg at 1.0 N).
 KNOWN_MISSES: dict[tuple[str, str], str] = {}
 
-#: Plain xfails (see test_gates.MACHINE_DEPENDENT): gates these objects passed at 847ccaa on an
+#: Plain xfails (see test_gates.MACHINE_DEPENDENT): gates these objects passed at 09052e6 on an
 #: AVX-512 machine of this kind, where CI's machine (another CPU) last measured older code and
 #: still failed one of them (b54bd20: one XFAIL and two XPASS among these three; its log does
 #: not say which), and whose figures sit near their limits or changed with the CPU elsewhere.
 MACHINE_DEPENDENT: dict[tuple[str, str], str] = {
     ("chest", "segmentation_accuracy"):
-        "0.974 at 847ccaa on the AVX-512 machine (limit 0.97); 0.891 at 30faea6",
+        "0.974 at 09052e6 on the AVX-512 machine (limit 0.97); 0.891 at 30faea6",
     ("chest", "manipulation"):
-        "passes at 847ccaa on the AVX-512 machine (9.9 N); at 30faea6 no grasp was planned",
+        "passes at 09052e6 on the AVX-512 machine (9.9 N); at 30faea6 no grasp was planned",
     ("mm_cabinet", "manipulation"):
-        "passes at 847ccaa on the AVX-512 machine (1.0 N); at 30faea6 2.18 N against the 2 N "
+        "passes at 09052e6 on the AVX-512 machine (1.0 N); at 30faea6 2.18 N against the 2 N "
         "floor (its force reference had failed)",
 }
 
