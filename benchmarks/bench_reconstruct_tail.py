@@ -68,6 +68,12 @@ def main() -> int:
     confs = [_stage(cache, f"configuration_{c}", "capture", cap.name) / "configuration"
              for c, cap in zip("ab", captures, strict=True)]
     reconstruct = importlib.import_module("artrecon.reconstruct")
+    from sim.scene import load_scene
+
+    # the scene's own settings, as the main job's reconstruct stage applies them (scissors:
+    # full-resolution stereo; without them its configurations were silently redone at half)
+    config = reconstruct.with_settings(reconstruct.ReconstructConfig(),
+                                       load_scene(args.scene).reconstruct_settings or {})
     saved = {}
     articulate = reconstruct.articulate
 
@@ -79,8 +85,9 @@ def main() -> int:
     load = os.getloadavg()[0]
     wall, cpu = time.perf_counter(), time.process_time()
     model = reconstruct.reconstruct(captures[0] / "set", captures[1] / "set", poses=True,
-                                    out_dir=out / "model", seed=0, overwrite=True,
-                                    progress=False, configurations=tuple(confs))
+                                    out_dir=out / "model", seed=0, config=config,
+                                    overwrite=True, progress=False,
+                                    configurations=tuple(confs))
     wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     art = saved["art"]
     np.savez(out / "labels.npz", labels_a=art.labels_a, labels_b=art.labels_b,
