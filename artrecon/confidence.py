@@ -41,6 +41,7 @@ import numpy as np
 
 from artrecon import tolerances as tol
 from artrecon.errors import DegenerateError, WeakEvidenceError
+from artrecon.geometry import skew
 from artrecon.procrustes import Similarity, rotation_angle
 
 log = logging.getLogger(__name__)
@@ -173,9 +174,7 @@ def _batch_gls_step(pa: np.ndarray, pb: np.ndarray, transform: Similarity, mats:
     x = s * pa @ rot.T
     r = x + t - pb
     jac = np.zeros((len(pa), 3, 6))
-    jac[:, 0, 1], jac[:, 0, 2] = x[:, 2], -x[:, 1]  # -[x]_x: d r / d omega
-    jac[:, 1, 0], jac[:, 1, 2] = -x[:, 2], x[:, 0]
-    jac[:, 2, 0], jac[:, 2, 1] = x[:, 1], -x[:, 0]
+    jac[:, :, :3] = -skew(x)  # d r / d omega
     jac[:, :, 3:] = np.eye(3)
     jw = np.einsum("nki,nkl->nil", jac, mats)
     h = np.einsum("nil,nlj->nij", jw, jac).reshape(len(pa), 36)

@@ -14,6 +14,7 @@ __all__ = [
     "rotation_about",
     "rotation_angle",
     "log_so3",
+    "exp_so3",
     "axis_angle",
     "quat_wxyz_to_matrix",
     "pose",
@@ -23,9 +24,17 @@ __all__ = [
 
 
 def skew(v) -> np.ndarray:
-    """The (3, 3) cross-product matrix of a (3,) vector: ``skew(a) @ b == cross(a, b)``."""
-    x, y, z = np.asarray(v, dtype=float).reshape(3)
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    """The (3, 3) cross-product matrix of a (3,) vector, ``skew(a) @ b == cross(a, b)``, or the
+    (n, 3, 3) stack of an (n, 3) stack of vectors."""
+    v = np.asarray(v, dtype=float)
+    if v.shape[-1] != 3:
+        raise ValueError(f"skew needs vectors of 3 components, got shape {v.shape}")
+    out = np.zeros(v.shape + (3,))
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    out[..., 0, 1], out[..., 0, 2] = -z, y
+    out[..., 1, 0], out[..., 1, 2] = z, -x
+    out[..., 2, 0], out[..., 2, 1] = -y, x
+    return out
 
 
 def rotation_about(axis, angle: float) -> np.ndarray:
@@ -58,6 +67,17 @@ def log_so3(rotation: np.ndarray) -> np.ndarray:
         return angle * v[:, np.argmax(w)]
     s = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
     return angle * s / np.linalg.norm(s)
+
+
+def exp_so3(rotvec) -> np.ndarray:
+    """(3, 3) rotation of a rotation vector (3,): by its length about it (the inverse of
+    :func:`log_so3`); ``I + skew(w)`` below 1e-12 rad."""
+    w = np.asarray(rotvec, dtype=float).reshape(3)
+    theta = float(np.linalg.norm(w))
+    if theta < 1e-12:
+        return np.eye(3) + skew(w)
+    K = skew(w)
+    return np.eye(3) + np.sin(theta) / theta * K + (1 - np.cos(theta)) / theta ** 2 * K @ K
 
 
 def axis_angle(rotation: np.ndarray) -> tuple[np.ndarray, float]:

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from artrecon.geometry import exp_so3, skew
 from artrecon.procrustes import Similarity, robust_shared_scale_transforms
 
 __all__ = ["MatchCovariances", "point_covariances", "robust_gls_transforms",
@@ -129,22 +130,6 @@ def _inverse_information(info: np.ndarray) -> np.ndarray:
         return np.eye(3) * 1e12
     vals = np.maximum(vals, top / MAX_ANISOTROPY ** 2)
     return (vecs / vals) @ vecs.T
-
-
-def _skew_batch(x: np.ndarray) -> np.ndarray:
-    out = np.zeros((len(x), 3, 3))
-    out[:, 0, 1], out[:, 0, 2] = -x[:, 2], x[:, 1]
-    out[:, 1, 0], out[:, 1, 2] = x[:, 2], -x[:, 0]
-    out[:, 2, 0], out[:, 2, 1] = -x[:, 1], x[:, 0]
-    return out
-
-
-def _rotvec_matrix(w: np.ndarray) -> np.ndarray:
-    theta = float(np.linalg.norm(w))
-    k = _skew_batch(w[None])[0]
-    if theta < 1e-12:
-        return np.eye(3) + k
-    return np.eye(3) + np.sin(theta) / theta * k + (1 - np.cos(theta)) / theta ** 2 * k @ k
 
 
 def robust_gls_transforms(
@@ -249,7 +234,7 @@ def robust_gls_transforms(
             x, r, w, wmat = e_step(i, update=True)
             new.append(w)
             # r(delta) = r + omega x x + ds x + dt: d r / d(omega, dt, ds)
-            jac = np.concatenate([-_skew_batch(x), np.broadcast_to(np.eye(3), (len(x), 3, 3)),
+            jac = np.concatenate([-skew(x), np.broadcast_to(np.eye(3), (len(x), 3, 3)),
                                   x[:, :, None]], axis=2)  # (n, 3, 7)
             hi = np.einsum("nki,nkl,nlj->ij", jac, wmat, jac)
             gi = np.einsum("nki,nkl,nl->i", jac, wmat, r)
@@ -265,7 +250,7 @@ def robust_gls_transforms(
         weights = new
         for i in range(n_groups):
             # the motion p -> (1 + ds) exp(omega) s R p + t + dt
-            rots[i] = _orthonormal(_rotvec_matrix(step[6 * i:6 * i + 3]) @ rots[i])
+            rots[i] = _orthonormal(exp_so3(step[6 * i:6 * i + 3]) @ rots[i])
             trans[i] = trans[i] + step[6 * i + 3:6 * i + 6]
         scale *= 1.0 + step[-1]
         per_group = step[:-1].reshape(-1, 6)
