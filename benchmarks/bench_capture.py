@@ -30,6 +30,27 @@ cameras.json, capture.json and ground_truth/poses.json byte-identical between th
 drawer's capture is now mostly its view plan: IK descents for 42 candidate rings of its lowest
 ring.)
 
+- ``--plan-cache``: each configuration captured three times, without a plan cache (``cold``),
+  storing its view plan (``stored``) and from the stored plan (``cached``): CPU per step, the
+  ratio cached / cold, and whether the three image sets are byte-identical.
+
+The view plan cache (sim.capture.plan_views), measured at 0458c4f against 863fc30 (before), one
+capture per process (``python -c "sim.capture.capture(...)"``), 121 images per set (drawer b:
+124), load average 7-15 on the 2 cores (wall times 2-5x the CPU), CPU seconds of the capture
+(``timings``; the process adds ~1.5 s of imports):
+
+    CPU s             before (plan + move + render + png)   plan stored      plan cached
+    pliers  a          10.6 = 0.2 + 0.8 + 8.1 + 1.4           11.1 (0.3)       10.5 (0.2)
+    pliers  b          11.2 = 0.4 + 1.5 + 7.9 + 1.5           11.6 (0.4)       10.8 (0.2)
+    drawer  a          29.9 = 16.1 + 4.1 + 8.2 + 1.6          31.1 (16.3)      13.7 (0.2)
+    drawer  b          27.9 = 14.9 + 3.4 + 8.1 + 1.6          29.0 (15.9)      13.2 (0.2)
+    truck   a          19.7 = 7.8 + 2.5 + 7.8 + 1.6           21.2 (9.0)       12.3 (0.2)
+    truck   b          25.6 = 12.1 + 4.4 + 7.5 + 1.6          24.6 (11.6)      13.3 (0.2)
+
+(in brackets: the plan's CPU; a cached plan's 0.2 s is hashing the compiled model and reading
+plan.json). Every file of every set (images, depth, labels, cameras.json, capture.json,
+poses.json) byte-identical across the three columns.
+
 One JSON line per scene follows the table (``{"scene": ..., "render_ms": {...},
 "capture": {...}}``). Timings only; nothing is asserted.
 
