@@ -30,6 +30,27 @@ cameras.json, capture.json and ground_truth/poses.json byte-identical between th
 drawer's capture is now mostly its view plan: IK descents for 42 candidate rings of its lowest
 ring.)
 
+- ``--plan-cache``: each configuration captured three times, without a plan cache (``cold``),
+  storing its view plan (``stored``) and from the stored plan (``cached``): CPU per step, the
+  ratio cached / cold, and whether the three image sets are byte-identical.
+
+The view plan cache (sim.capture.plan_views), measured at 0458c4f against 863fc30 (before), one
+capture per process (``python -c "sim.capture.capture(...)"``), 121 images per set (drawer b:
+124), load average 7-15 on the 2 cores (wall times 2-5x the CPU), CPU seconds of the capture
+(``timings``; the process adds ~1.5 s of imports):
+
+    CPU s             before (plan + move + render + png)   plan stored      plan cached
+    pliers  a          10.6 = 0.2 + 0.8 + 8.1 + 1.4           11.1 (0.3)       10.5 (0.2)
+    pliers  b          11.2 = 0.4 + 1.5 + 7.9 + 1.5           11.6 (0.4)       10.8 (0.2)
+    drawer  a          29.9 = 16.1 + 4.1 + 8.2 + 1.6          31.1 (16.3)      13.7 (0.2)
+    drawer  b          27.9 = 14.9 + 3.4 + 8.1 + 1.6          29.0 (15.9)      13.2 (0.2)
+    truck   a          19.7 = 7.8 + 2.5 + 7.8 + 1.6           21.2 (9.0)       12.3 (0.2)
+    truck   b          25.6 = 12.1 + 4.4 + 7.5 + 1.6          24.6 (11.6)      13.3 (0.2)
+
+(in brackets: the plan's CPU; a cached plan's 0.2 s is hashing the compiled model and reading
+plan.json). Every file of every set (images, depth, labels, cameras.json, capture.json,
+poses.json) byte-identical across the three columns.
+
 One JSON line per scene follows the table (``{"scene": ..., "render_ms": {...},
 "capture": {...}}``). Timings only; nothing is asserted.
 
@@ -42,6 +63,7 @@ benchmarks/bench_capture.py pliers drawer``.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import subprocess
@@ -165,22 +187,74 @@ def bench_capture(name: str, n_views: int, config: str = "a", keep: Path | None 
             **{k: v for k, v in t.items() if k.endswith("_s")}}
 
 
+def _tree_hash(folder: Path) -> str:
+    """SHA-256 over the relative names and bytes of every file under ``folder``."""
+    h = hashlib.sha256()
+    for f in sorted(p for p in folder.rglob("*") if p.is_file()):
+        h.update(str(f.relative_to(folder)).encode() + b"\0" + f.read_bytes())
+    return h.hexdigest()
+
+
+def bench_plan_cache(name: str, n_views: int, config: str = "a") -> dict:
+    """Three captures of one configuration: without a plan cache (``cold``: as before the
+    cache), with an empty one (``stored``: solves and stores the plan) and with the plan stored
+    (``cached``). Prints the CPU of each step, the ratio cached / cold, and whether the three
+    image sets are byte-identical."""
+    if not hasattr(capture, "plan_views"):
+        print(f"{name:10s} plan cache: not in this code")
+        return {}
+    rows = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        plans = Path(tmp) / "plans"
+        for label, cache_dir in (("cold", None), ("stored", plans), ("cached", plans)):
+            out = Path(tmp) / label
+            t0, c0 = time.perf_counter(), _cpu()
+            res = capture.capture(name, config, out, n_views=n_views, progress=False,
+                                  plan_cache=cache_dir)
+            t = res.timings
+            rows[label] = {"wall_s": time.perf_counter() - t0, "cpu_s": _cpu() - c0,
+                           "plan_cached": res.plan_cached, "hash": _tree_hash(out),
+                           **{k: t[k] for k in ("plan_cpu_s", "move_cpu_s", "render_cpu_s",
+                                                "png_cpu_s")}}
+    same = len({r["hash"] for r in rows.values()}) == 1
+    for label, r in rows.items():
+        print(f"{name:10s} {config} {label:6s}: {r['cpu_s']:5.1f} s CPU = plan "
+              f"{r['plan_cpu_s']:.1f} + move {r['move_cpu_s']:.1f} + render "
+              f"{r['render_cpu_s']:.1f} + png {r['png_cpu_s']:.1f} (+ loading); wall "
+              f"{r['wall_s']:.1f} s")
+    ratio = rows["cached"]["cpu_s"] / rows["cold"]["cpu_s"]
+    print(f"{name:10s} {config} cached / cold CPU {ratio:.2f}, plan CPU "
+          f"{rows['cold']['plan_cpu_s']:.1f} -> {rows['cached']['plan_cpu_s']:.2f} s; files "
+          f"{'byte-identical' if same else 'DIFFER'}")
+    return {"config": config, "identical": same, "cached_over_cold_cpu": ratio,
+            **{label: {k: v for k, v in r.items() if k != "hash"} for label, r in rows.items()}}
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("scenes", nargs="*", help="scene names (default: all bundled scenes)")
     p.add_argument("--views", type=int, default=36, help="views per full ring of the capture")
     p.add_argument("--frames", type=int, default=12, help="views per render timing")
-    p.add_argument("--config", default="a", help="object configuration to capture (a or b)")
+    p.add_argument("--config", nargs="+", default=["a"],
+                   help="object configurations to capture (a, b or both)")
     p.add_argument("--no-capture", action="store_true", help="render timings only")
+    p.add_argument("--no-render", action="store_true", help="no render timings")
+    p.add_argument("--plan-cache", action="store_true",
+                   help="capture each configuration three times: without a plan cache, storing "
+                        "the plan, from the stored plan (CPU per step, ratio, file identity)")
     p.add_argument("--keep", type=Path, help="keep the captured sets in this folder")
     args = p.parse_args()
     print(f"# code at {_commit()}, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} "
           "CPUs (CPU seconds are what counts; wall time grows with the load)")
     for name in args.scenes or list_scenes():
-        row = {"scene": name, "commit": _commit(),
-               "render_ms": bench_render(name, args.frames, args.config)}
-        if not args.no_capture:
-            row["capture"] = bench_capture(name, args.views, args.config, args.keep)
+        row = {"scene": name, "commit": _commit()}
+        if not args.no_render:
+            row["render_ms"] = bench_render(name, args.frames, args.config[0])
+        for config in args.config:
+            if args.plan_cache:
+                row[f"plan_cache_{config}"] = bench_plan_cache(name, args.views, config)
+            elif not args.no_capture:
+                row[f"capture_{config}"] = bench_capture(name, args.views, config, args.keep)
         print(json.dumps(row))
 
 

@@ -28,6 +28,7 @@ beside DIR and renamed, so DIR is whole or absent.
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import os
@@ -103,6 +104,8 @@ class CaptureResult:
     """largest distance (m) between the FK camera pose and MuJoCo's camera"""
     max_fk_rotation_error: float = 0.0
     """largest angle (rad) between them"""
+    plan_cached: bool = False
+    """the view plan was read from the plan cache (no IK was solved)"""
     timings: dict = field(default_factory=dict)
     """seconds spent planning, moving, rendering (wall, ``*_s``) and CPU seconds (``*_cpu_s``,
     ``cpu_s`` the whole capture's, all threads); not written to disk"""
@@ -368,6 +371,96 @@ class _Arm:
         return self.data.qpos[self.qidx].copy()
 
 
+# ------------------------------------------------------------------------------------ view plan
+#: File of a cached view plan (:func:`plan_views`), in its stage folder of the plan cache.
+PLAN_FILE = "plan.json"
+
+
+@functools.cache
+def plan_sources() -> str:
+    """Hash of the code a view plan runs (:mod:`sim.views` and what it imports of ``sim``,
+    :mod:`artrecon.geometry` that the kinematics use), once per process: the code this
+    process loaded (see :func:`sim.evaluate.stages.freeze_code_keys`)."""
+    import artrecon.geometry
+    from sim import cache
+
+    return cache.hash_bytes(cache.closure_hash(views).encode(),
+                            cache.closure_hash(artrecon.geometry, "artrecon").encode())
+
+
+def plan_inputs(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinematics,
+                K: np.ndarray, width: int, height: int, config: views.ViewPlanConfig) -> dict:
+    """Everything :func:`sim.views.plan_capture` reads, as a dict for the plan cache's key.
+
+    The compiled model itself (MuJoCo's binary model file, hashed: the scene file and every
+    file it includes or references, the arm, the joint holds' targets), the state the plan
+    starts from (joint positions, mocap poses), the arm's URDF when its kinematics come from
+    one, the camera, the ring layout and seed, the planning code and the numerical packages.
+    A scene file edited so that its compiled model changes gives another key; an edit that
+    compiles to the same model (a comment) keeps the plan, which is the same plan.
+    """
+    import dataclasses
+
+    import pinocchio
+
+    from sim import cache
+
+    buf = np.empty(mujoco.mj_sizeModel(model), dtype=np.uint8)
+    mujoco.mj_saveModel(model, None, buf)
+    state = cache.hash_bytes(*(np.ascontiguousarray(a, dtype=np.float64).tobytes()
+                               for a in (data.qpos, data.mocap_pos, data.mocap_quat)))
+    urdf = None
+    if kin.spec.urdf is not None:
+        urdf = cache.hash_files([robot.ROOT / kin.spec.urdf], root=robot.ROOT)
+    return {"model": cache.hash_bytes(buf.tobytes()), "state": state, "arm": kin.spec.name,
+            "urdf": urdf, "K": np.asarray(K, dtype=float).tolist(), "size": [width, height],
+            "plan": dataclasses.asdict(config), "code": plan_sources(),
+            "versions": {"numpy": np.__version__, "mujoco": mujoco.__version__,
+                         "pinocchio": pinocchio.__version__}}
+
+
+def plan_views(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinematics,
+               K: np.ndarray, width: int, height: int, config: views.ViewPlanConfig, *,
+               cache_dir=None, stage: str = "plan", progress=None) -> tuple[views.ViewPlan, bool]:
+    """:func:`sim.views.plan_capture`, or the same plan read from ``cache_dir``.
+
+    With ``cache_dir``, the plan is a stage of :func:`sim.cache.cached_stage` keyed by
+    :func:`plan_inputs`: ``cache_dir/<stage>-<hash>/plan.json``, solved and stored when absent.
+    The file holds every number of the plan exactly (:func:`sim.views.plan_to_json`), so a
+    capture from a cached plan writes the same files as one that solved it. A large object's
+    plan is most of its capture's CPU (drawer: 15 of 29 s), and it depends on none of what
+    later code changes of the capture (rendering, the arm's motion, the files) touch.
+
+    Returns
+    -------
+    plan : sim.views.ViewPlan
+    cached : bool
+        The plan came from the cache.
+    """
+    if cache_dir is None:
+        return views.plan_capture(model, data, kin, K, width, height, config,
+                                  progress=progress), False
+    from sim import cache
+
+    solved = []
+
+    def build(folder: Path) -> dict:
+        plan = views.plan_capture(model, data, kin, K, width, height, config, progress=progress)
+        (folder / PLAN_FILE).write_text(json.dumps(views.plan_to_json(plan)) + "\n")
+        solved.append(plan)
+        return {"views": len(plan.views), "reachable": len(plan.reachable)}
+
+    folder, _, hit = cache.cached_stage(cache_dir, stage,
+                                        plan_inputs(model, data, kin, K, width, height, config),
+                                        build)
+    if not hit:
+        return solved[0], False
+    plan = views.plan_from_json(json.loads((folder / PLAN_FILE).read_text()))
+    if progress is not None:
+        progress.update(len(plan.views))
+    return plan, True
+
+
 # ------------------------------------------------------------------------------------ capture
 def _scene_inputs(scene) -> list[Path]:
     """The scene file and every file it references (never to be written over), [] when the
@@ -407,7 +500,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
             fill_range: tuple[float, float] = (0.45, 0.75),
             max_elevation_shift_deg: float = 10.0, seed: int = 0,
             free_camera_fallback: bool = False, overwrite: bool = False,
-            progress: bool = True) -> CaptureResult:
+            progress: bool = True, plan_cache=None) -> CaptureResult:
     """Capture one image set of a scene in one configuration of its object.
 
     Parameters
@@ -434,6 +527,10 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
         Replace an existing ``out_dir``.
     progress : bool
         Show a tqdm progress bar.
+    plan_cache : path, optional
+        Folder of cached view plans (:func:`plan_views`): the plan of these same inputs is read
+        from there instead of solved, and a new one is stored there. The files written are the
+        same either way.
 
     Returns
     -------
@@ -463,7 +560,8 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
     expected = sum(n for _, n in views.ring_sizes(plan_cfg))
     bar = tqdm(total=2 * expected, desc=f"capture {sc.name}/{config}", unit="view",
                disable=not progress)
-    plan = views.plan_capture(model, data, kin, K, width, height, plan_cfg, progress=bar)
+    plan, plan_cached = plan_views(model, data, kin, K, width, height, plan_cfg,
+                                   cache_dir=plan_cache, stage=f"plan_{config}", progress=bar)
     centre, radius = plan.centre, plan.radius
     t_plan = time.perf_counter()
     plan_cpu = time.thread_time() - main_start
@@ -634,7 +732,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = 36,
     result = CaptureResult(
         out_dir=out_dir, n_planned=len(plan.views), n_captured=len(to_take),
         unreachable=unreachable, free_camera=free, max_fk_position_error=max_dp,
-        max_fk_rotation_error=max_dr,
+        max_fk_rotation_error=max_dr, plan_cached=plan_cached,
         timings={"plan_s": t_plan - t_start, "move_s": t_move, "render_s": t_render,
                  "total_s": t_end - t_start,
                  "render_ms_per_image": 1e3 * t_render / n,
@@ -771,6 +869,9 @@ def main(argv=None) -> int:
     p.add_argument("--free-camera-fallback", action="store_true",
                    help="photograph views the arm cannot reach with a free camera")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
+    p.add_argument("--plan-cache", type=Path, metavar="DIR",
+                   help="reuse the view plan (rings and IK) of the same scene, configuration, "
+                        "views and seed stored in DIR, and store new plans there")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
     problem = views.views_problem(args.views)
@@ -780,7 +881,8 @@ def main(argv=None) -> int:
     try:
         res = capture(args.scene, args.config, args.out, n_views=args.views, seed=args.seed,
                       fill=args.fill, free_camera_fallback=args.free_camera_fallback,
-                      overwrite=args.overwrite, progress=not args.quiet)
+                      overwrite=args.overwrite, progress=not args.quiet,
+                      plan_cache=args.plan_cache)
     except (ValueError, FileNotFoundError, FileExistsError, PermissionError,
             CaptureError) as e:
         p.exit(2, f"error: {e}\n")

@@ -157,6 +157,60 @@ def test_same_arguments_give_identical_files(pliers_set, tmp_path):
         assert (out / f).read_bytes() == (again / f).read_bytes(), f"{f} differs"
 
 
+def _same_files(a: Path, b: Path) -> None:
+    files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(b) for p in b.rglob("*") if p.is_file())
+    for f in files:
+        assert (a / f).read_bytes() == (b / f).read_bytes(), f"{f} differs"
+
+
+def test_a_cached_plan_gives_the_same_files_without_solving_again(pliers_set, tmp_path,
+                                                                   monkeypatch):
+    _, out = pliers_set  # captured without a plan cache
+    plans = tmp_path / "plans"
+    first = C.capture("pliers", "b", tmp_path / "first", plan_cache=plans, **SMALL)
+    assert not first.plan_cached
+    assert len(list(plans.glob("plan_b-*/plan.json"))) == 1
+
+    def solve_again(*args, **kw):
+        raise AssertionError("the cached plan was solved again")
+
+    monkeypatch.setattr(views, "plan_capture", solve_again)
+    again = C.capture("pliers", "b", tmp_path / "again", plan_cache=plans, **SMALL)
+    assert again.plan_cached and again.n_captured == first.n_captured == 8
+    _same_files(out, tmp_path / "first")
+    _same_files(out, tmp_path / "again")
+
+
+def test_the_plan_cache_is_keyed_by_the_compiled_scene_and_the_plan_settings(tmp_path):
+    scenes = Path(C.__file__).resolve().parent.parent / "scenes"
+    text = (scenes / "pliers.xml").read_text()
+    text = text.replace('<include file="stage.xml"/>', f'<include file="{scenes}/stage.xml"/>')
+    text = text.replace('file="assets/', f'file="{scenes}/assets/')
+    scene = tmp_path / "pliers_copy.xml"
+    scene.write_text(text)
+    plans = tmp_path / "plans"
+
+    def cached(name, **kw):
+        res = C.capture(scene, "a", tmp_path / name, plan_cache=plans, **{**SMALL, **kw})
+        return res.plan_cached
+
+    assert not cached("first")
+    assert cached("second")
+    scene.write_text("<!-- a comment compiles to the same model: the same plan -->\n" + text)
+    assert cached("comment")
+    assert not cached("seed", seed=1)
+    moved = text.replace('<body name="object" pos="0 0 0.45"', '<body name="object" '
+                         'pos="0.02 0 0.45"')
+    assert moved != text
+    scene.write_text(moved)
+    assert not cached("moved")
+    assert cached("moved_again")
+    assert len(list(plans.glob("plan_a-*/plan.json"))) == 3
+    report = _load_json(tmp_path / "moved" / "capture.json")
+    assert report["captured"] == 8
+
+
 def test_failed_capture_leaves_nothing(tmp_path, monkeypatch):
     calls = {"n": 0}
     real = C.render.MjRenderer.render

@@ -43,8 +43,10 @@ def freeze_code_keys() -> None:
     loaded, not the files as they are later: hashed from disk at each stage, a file edited
     while a run goes on (a merge, an editor) filed stages built by the old code under the new
     code's key, and the next run took them as current. Called when an evaluation starts."""
+    from sim.capture import plan_sources
+
     for fn in (_capture_sources, _configuration_sources, _reconstruct_sources,
-               _manipulate_sources):
+               _manipulate_sources, plan_sources):
         fn()
 
 
@@ -105,8 +107,10 @@ def capture_stage(scene: Scene, configuration: str, ev: EvalConfig, cache_root: 
 
     def build(folder: Path) -> dict:
         res = capture(perturb.capture_scene(scene, ev.perturb, configuration), configuration,
-                      folder / "set", n_views=ev.views, seed=ev.seed, progress=ev.progress)
+                      folder / "set", n_views=ev.views, seed=ev.seed, progress=ev.progress,
+                      plan_cache=cache_root)  # the view plan outlives code edits of the capture
         return {"n_planned": res.n_planned, "n_captured": res.n_captured,
+                "plan_cached": res.plan_cached,
                 "unreachable": res.unreachable,
                 "max_fk_position_error_mm": 1e3 * res.max_fk_position_error,
                 "max_fk_rotation_error_deg": float(np.rad2deg(res.max_fk_rotation_error)),
