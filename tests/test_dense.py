@@ -96,10 +96,42 @@ def test_object_region_keeps_a_thin_object_lying_on_the_table():
     assert mask[:len(table)].mean() < 0.01
 
 
+@pytest.mark.parametrize("lid_deg", [25.0, 55.0])
+def test_object_region_is_not_fooled_by_a_dense_tilted_lid(lid_deg):
+    """The rendered hinge seen by one ring of cameras: its open lid, close to the cameras and
+    textured, holds more SfM points than the table around the box. The lid's plane is no support
+    (at 25 deg the table in front of the box lies beyond it, at 55 deg cameras are on both sides):
+    the table is found, the box and the lid are kept, the table is dropped."""
+    rng = np.random.default_rng(3)
+    r = 0.3 * np.sqrt(rng.uniform(0, 1, 1500))  # the table, uniform over a 0.3 m disc
+    t = rng.uniform(0, 2 * np.pi, 1500)
+    table = np.column_stack([r * np.cos(t), r * np.sin(t), rng.normal(0, 3e-4, 1500)])
+    table = table[(np.abs(table[:, 0]) > 0.15) | (np.abs(table[:, 1]) > 0.11)]  # not under the box
+    front = np.column_stack([rng.uniform(-0.15, 0.15, 300), np.full(300, -0.11),
+                             rng.uniform(0.0, 0.06, 300)])
+    top = np.column_stack([rng.uniform(-0.15, 0.15, 300), rng.uniform(-0.11, 0.11, 300),
+                           np.full(300, 0.06)])
+    a = np.deg2rad(lid_deg)  # hinged on the back top edge, the front edge lifted
+    s, u = rng.uniform(-0.15, 0.15, 2500), rng.uniform(0, 0.22, 2500)
+    lid = np.column_stack([s, 0.11 - u * np.cos(a), 0.06 + u * np.sin(a) + 0.015])
+    box = np.concatenate([front, top, lid])
+    pts = np.concatenate([table, box])
+    c, _ = ring(n=18, radius=0.5, height=0.4)
+    axes = np.array([0, 0, 0.08]) - c
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    mask = dense.object_region(pts, c, axes)
+    assert mask[len(table):].mean() > 0.95
+    assert mask[:len(table)].mean() < 0.01
+
+
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="coverage 0.579 < 0.6 in configuration A (median 1.31 mm, "
-                   "p90 3.30 mm) at 30faea6: a regression not yet traced (OpenCV SIFT by default "
-                   "since 6272aae, 7% fewer points, is the first suspect)")
+@pytest.mark.xfail(strict=True, reason=(
+    "coverage 0.581 < 0.6 in configuration A (median 1.44 mm, p90 3.32 mm) at 1e7cd60. Traced "
+    "to 8df7fe8 (0.787 at its parent 92c06d8, 0.583 at it; not OpenCV's SIFT: COLMAP's gives "
+    "0.583): its edge erosion (a pixel more than 0.5 px of disparity above the least in its 5x5 "
+    "window) takes slanted surfaces and block matching's noise for depth edges and drops 70% of "
+    "the stereo pixels, a third of the box's sides (edge_erosion_px=0: 0.775). Not yet fixed: a "
+    "true edge test changes every scene's dense points and must be shown not to hurt them"))
 def test_dense_points_lie_on_the_true_surface(rendered, reconstruction_sfm):
     """Dense points of each configuration, aligned by the camera centres, lie on the object and
     cover its visible surface all around."""
