@@ -10,6 +10,7 @@ from scipy.spatial import cKDTree
 
 import sim  # noqa: F401
 from sim.manipulate import GraspCandidate, JointEstimate, PlanningConfig, build_world, fresh_data
+from sim.manipulate import candidates as C
 from sim.manipulate import planning as P
 from sim.manipulate.execute import GripConfig, _Run
 from sim.scene import load_scene
@@ -59,9 +60,9 @@ def _face(step=0.002, half=0.02):
 def test_a_point_on_the_rim_of_its_face_is_no_candidate():
     pts, nrm = _face()
     tree, cfg, n = cKDTree(pts), PlanningConfig(), np.array([0.0, 0.0, 1.0])
-    assert P._surrounded(np.zeros(3), n, pts, nrm, tree, cfg)
-    assert not P._surrounded(np.array([0.02, 0.0, 0.0]), n, pts, nrm, tree, cfg)
-    assert not P._surrounded(np.array([0.019, 0.019, 0.0]), n, pts, nrm, tree, cfg)
+    assert C._surrounded(np.zeros(3), n, pts, nrm, tree, cfg)
+    assert not C._surrounded(np.array([0.02, 0.0, 0.0]), n, pts, nrm, tree, cfg)
+    assert not C._surrounded(np.array([0.019, 0.019, 0.0]), n, pts, nrm, tree, cfg)
 
 
 def test_a_candidates_normal_is_its_surfaces_not_its_points():
@@ -75,9 +76,9 @@ def test_a_candidates_normal_is_its_surfaces_not_its_points():
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
     tree, cfg = cKDTree(pts), PlanningConfig()
     mean = nrm[np.linalg.norm(pts, axis=1) < 0.003].mean(axis=0)
-    n = P._plane_normal(np.zeros(3), mean / np.linalg.norm(mean), pts, nrm, tree, cfg)
+    n = C._plane_normal(np.zeros(3), mean / np.linalg.norm(mean), pts, nrm, tree, cfg)
     assert np.degrees(np.arccos(n[2])) < 1.0
-    down = P._plane_normal(np.zeros(3), -mean / np.linalg.norm(mean), pts, -nrm, tree, cfg)
+    down = C._plane_normal(np.zeros(3), -mean / np.linalg.norm(mean), pts, -nrm, tree, cfg)
     assert down[2] < -0.9998
 
 
