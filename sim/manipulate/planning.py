@@ -207,20 +207,17 @@ def _plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate,
             reasons.append(f"roll {roll}: the motion's joint path kinks at "
                            f"{100 * s[kink[1]]:.0f}% of the path (a joint held at its limit)")
             continue
-        step = max(1, len(q_path) // cfg.travel_checks)
+        step = max(1, len(q_path) // cfg.motion_checks)
         hits = next((h for h in (pw.arm_contacts(qk, moving_links=moving_links)
                                  for qk in q_path[step::step]) if h), [])
         if hits:
             reasons.append(f"roll {roll}: the arm touches {hits[0]} during the motion")
             continue
-        clear = True
-        for f in np.linspace(0, 1, cfg.travel_checks + 2)[1:-1]:
-            hits = pw.arm_contacts(q_start + f * (pre.q - q_start))
-            if hits:
-                reasons.append(f"roll {roll}: travel to pre-grasp touches {hits[0]}")
-                clear = False
-                break
-        if not clear:
+        hits, at = pw.travel_contacts(q_start, pre.q)
+        if hits:
+            reasons.append(f"roll {roll}: travel to pre-grasp meets {hits[0]} at "
+                           f"{100 * at:.0f}% of the way (the model kept "
+                           f"{1e3 * cfg.travel_clearance:.0f} mm off)")
             continue
         touch = pw.gripper_contacts(ik.q)
         cost = (touch > 0, float(np.sum(np.abs(pre.q - q_start))))

@@ -58,8 +58,13 @@ class PlanningConfig:
     the camera sees (a back face seen over a panel's rim) is hidden from the model's spheres
     and visible on the true object by a hair, and is called visible"""
     gripper_contact_radius: float = 0.03
-    """at the grasp pose the gripper may touch the model within this distance (m) of the grasp
-    point (it is meant to) ..."""
+    """at the grasp pose the gripper may touch the grasped link within this distance (m) of the
+    grasp point (it is meant to) ..."""
+    gripper_contact_depth: float = 0.004
+    """... met no deeper than this (m): the fingertips stop 3 mm short of the surface and the
+    model's spheres (``sphere_radius``) stand 4 mm out of it, so a grasp meets them about 1 mm
+    deep; deeper than a sphere's radius the gripper is past the model's surface, inside the
+    link (any depth was allowed, and a gripper plunging into the grasped link passed) ..."""
     face_contact_radius: float = 0.05
     """... and on the grasped face (spheres of the grasped link within this distance (m) of the
     grasp point ...)"""
@@ -109,8 +114,19 @@ class PlanningConfig:
     """... and at least this many"""
     max_waypoint_joint_step: float = 0.15
     """largest joint change between waypoints (rad): larger means the IK jumped branches"""
-    travel_checks: int = 12
-    """configurations checked for contacts along the travel line to the pre-grasp pose"""
+    motion_checks: int = 12
+    """configurations checked for contacts along the motion (every ``len // motion_checks``-th
+    waypoint)"""
+    travel_joint_step: float = 0.005
+    """the travel from the arm's current pose to the pre-grasp pose (a straight line in joint
+    space, as execution follows it) is checked for contacts at configurations no more than this
+    far apart (rad) in any joint: 5 mm at a 1 m lever, within ``travel_clearance`` (12 checks
+    over the whole travel, up to 0.2 rad apart, saw nothing between them) ..."""
+    travel_clearance: float = 0.005
+    """... and the arm passes the model's spheres no closer than this (m): the model's surfaces
+    lie a few mm from the true ones (cabinet_door_only's travel passed the model's carcass by
+    0.6 mm and touched the true cabinet_top, 0.1 mm deep); the stage, which the robot knows,
+    keeps no margin"""
     max_path_kink: float = 0.3
     """the motion's joint path may change its step between waypoints by at most this share of
     its largest step: a joint that meets its limit mid-motion stops dead while the others take

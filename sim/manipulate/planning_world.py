@@ -45,7 +45,7 @@ class PlanningWorld:
     """
 
     def __init__(self, world: World, model: mujoco.MjModel, source: str, config: PlanningConfig,
-                 model_geoms: dict, occlusion_tolerance: float):
+                 model_geoms: dict, occlusion_tolerance: float, contact_margin: float = 0.0):
         self.world = world
         self.model = model
         self.data = mujoco.MjData(model)
@@ -62,6 +62,9 @@ class PlanningWorld:
         self.model_geoms = model_geoms
         """model sphere geom id -> the model link it stands for"""
         self.occlusion_tolerance = occlusion_tolerance
+        self.contact_margin = contact_margin
+        """the model geoms' compiled contact margin (m): the clearance the travel can be checked
+        with (the registered model's spheres: ``travel_clearance``; the true object: none)"""
         self._groups = np.zeros(6, dtype=np.uint8)
         self._groups[COLLISION_GROUP] = 1
 
@@ -87,7 +90,12 @@ class PlanningWorld:
             for k, c in enumerate(voxel_centres(pts, config.voxel, config.min_sphere_points)):
                 body.add_geom(name=f"model_link{li}_{k}", type=mujoco.mjtGeom.mjGEOM_SPHERE,
                               size=[config.sphere_radius, 0, 0], pos=c, contype=1,
-                              conaffinity=1, group=COLLISION_GROUP, rgba=[0.9, 0.6, 0.1, 1.0])
+                              conaffinity=1, group=COLLISION_GROUP, rgba=[0.9, 0.6, 0.1, 1.0],
+                              margin=config.travel_clearance, gap=config.travel_clearance)
+        # the margin (compiled in: MuJoCo's bounding boxes include it, a margin set after
+        # compiling finds nothing) makes MuJoCo report the arm's passes closer than
+        # travel_clearance as contacts of positive distance; arm_contacts counts those only
+        # on the travel (travel_contacts), every other check only contacts of negative distance
         model = spec.compile()
         # the true object is no part of the robot's knowledge: nothing collides with it and no
         # ray of the plan sees it
@@ -103,7 +111,7 @@ class PlanningWorld:
         log.info("planning world: %d model spheres (%.0f mm voxels) for %d model points",
                  len(geoms), 1e3 * config.voxel, n_points)
         return cls(world, model, "registered model", config, geoms,
-                   config.sphere_radius + config.occlusion_margin)
+                   config.sphere_radius + config.occlusion_margin, config.travel_clearance)
 
     @classmethod
     def from_scene(cls, world: World, config: PlanningConfig | None = None
@@ -195,18 +203,19 @@ class PlanningWorld:
         return [dataclasses.replace(c, clearance=float(d))
                 for c, d in zip(candidates, dist, strict=True)]
 
-    def _on_grasped_face(self, p, depth, grasp_point, grasp_normal) -> bool:
-        """A model sphere at ``p``, met ``depth`` deep (m, MuJoCo's contact distance), that the
-        gripper at the grasp pose may touch: within ``gripper_contact_radius`` of the grasp
-        point, or (``grasp_normal`` given) grazed by the fingertips on the grasped face
-        (:attr:`PlanningConfig.face_contact_radius`, ``face_contact_depth``): the fingertips
-        stop 3 mm short of the surface and the spheres stand 4 mm out of it."""
+    def _on_grasped_face(self, p, contact_dist, grasp_point, grasp_normal) -> bool:
+        """A model sphere at ``p``, met at ``contact_dist`` (m, MuJoCo's contact distance:
+        negative when the geoms overlap), that the gripper at the grasp pose may touch: within
+        ``gripper_contact_radius`` of the grasp point and no deeper than
+        ``gripper_contact_depth``, or (``grasp_normal`` given) grazed by the fingertips on the
+        grasped face (:attr:`PlanningConfig.face_contact_radius`, ``face_contact_depth``): the
+        fingertips stop 3 mm short of the surface and the spheres stand 4 mm out of it."""
         cfg = self.config
         dist = float(np.linalg.norm(np.asarray(p, float) - grasp_point))
-        if dist < cfg.gripper_contact_radius:
+        if dist < cfg.gripper_contact_radius and contact_dist > -cfg.gripper_contact_depth:
             return True
         return bool(grasp_normal is not None and dist < cfg.face_contact_radius
-                    and depth > -cfg.face_contact_depth)
+                    and contact_dist > -cfg.face_contact_depth)
 
     def gripper_contacts(self, q) -> int:
         """How many contacts the gripper (the bodies below the flange) has with the model (every
@@ -216,24 +225,30 @@ class PlanningWorld:
         d.qpos[self.qidx] = q
         mujoco.mj_forward(m, d)
         return sum(1 for c in d.contact[: d.ncon]
-                   if {int(m.geom_bodyid[c.geom[0]]), int(m.geom_bodyid[c.geom[1]])}
+                   if c.dist < 0
+                   and {int(m.geom_bodyid[c.geom[0]]), int(m.geom_bodyid[c.geom[1]])}
                    & self.gripper_bodies
                    and (int(c.geom[0]) in self.model_geoms or int(c.geom[1]) in self.model_geoms))
 
     def arm_contacts(self, q, grasp_point=None, grasp_links=(), moving_links=(),
-                     grasp_normal=None) -> list[str]:
+                     grasp_normal=None, clearance: float = 0.0) -> list[str]:
         """Contacts of the arm at configuration ``q`` in the plan's world. With ``grasp_point``,
         the gripper touching the grasped link (a model link of ``grasp_links``) within
-        ``gripper_contact_radius`` of it is allowed -- never another link, nor the stage; the
-        model links in ``moving_links`` (the grasped link and those it carries, during the
-        motion: they move with the gripper) are not obstacles. With ``grasp_normal`` too, the
-        gripper may also touch the grasped face under its fingers (:meth:`_on_grasped_face`)."""
+        ``gripper_contact_radius`` of it, no deeper than ``gripper_contact_depth``, is allowed
+        -- never another link, nor the stage; the model links in ``moving_links`` (the grasped
+        link and those it carries, during the motion: they move with the gripper) are not
+        obstacles. With ``grasp_normal`` too, the gripper may also touch the grasped face under
+        its fingers (:meth:`_on_grasped_face`). With ``clearance`` (m, at most
+        :attr:`contact_margin`), a pass of the arm closer than that to a model geom counts as a
+        contact too."""
         m, d = self.model, self.data
         d.qpos[self.qidx] = q
         mujoco.mj_forward(m, d)
         moving = set(moving_links)
         out = []
         for c in d.contact[: d.ncon]:
+            if c.dist >= clearance:
+                continue
             g1, g2 = int(c.geom[0]), int(c.geom[1])
             b1, b2 = int(m.geom_bodyid[g1]), int(m.geom_bodyid[g2])
             if b1 not in self.arm_links and b2 not in self.arm_links:
@@ -251,6 +266,32 @@ class PlanningWorld:
                     for g in (g1, g2)]
             out.append("/".join(name))
         return sorted(set(out))
+
+    def travel_contacts(self, q_from, q_to) -> tuple[list[str], float]:
+        """Contacts of the arm along the straight joint-space line from ``q_from`` to ``q_to``
+        (the travel to the pre-grasp pose, as execution follows it), its ends left out (the
+        start is where the arm is; the end is checked on its own): configurations no more than
+        :attr:`PlanningConfig.travel_joint_step` apart in any joint; a pass of the arm closer
+        than :attr:`PlanningConfig.travel_clearance` to the model counts as a contact (in a
+        world planned on the true object: a touch).
+
+        Returns
+        -------
+        hits : list of str
+            The contacts (:meth:`arm_contacts`) at the first configuration that has any; empty
+            when the line is clear.
+        at : float
+            Where along the line (0 at ``q_from``, 1 at ``q_to``; 1.0 when clear).
+        """
+        q_from, q_to = np.asarray(q_from, float), np.asarray(q_to, float)
+        span = float(np.max(np.abs(q_to - q_from))) if len(q_from) else 0.0
+        n = max(2, int(np.ceil(span / self.config.travel_joint_step)))
+        clearance = min(self.config.travel_clearance, self.contact_margin)
+        for f in np.arange(1, n) / n:
+            hits = self.arm_contacts(q_from + f * (q_to - q_from), clearance=clearance)
+            if hits:
+                return hits, float(f)
+        return [], 1.0
 
 
 __all__ = ["COLLISION_GROUP", "HIDDEN_GROUP", "PlanningWorld"]
