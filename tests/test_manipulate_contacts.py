@@ -1,6 +1,7 @@
-"""The plan's contact checks on synthetic models (issue 21): the travel to the pre-grasp pose is
-checked as densely as the arm moves and keeps a clearance from the model, and the gripper at
-the grasp pose may touch the grasped link near the grasp point but not plunge into it."""
+"""The plan's contact and visibility checks (issue 21): the travel to the pre-grasp pose is
+checked as densely as the arm moves and keeps a clearance from the model, the gripper at the
+grasp pose may touch the grasped link near the grasp point but not plunge into it, and the
+wrist camera's rays do not start inside its own housing."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import pytest
 
 import sim  # noqa: F401
 from artrecon.model import ArticulatedModel, Link
-from sim.manipulate import PlanningConfig, build_world, fresh_data
+from sim.manipulate import GraspCandidate, PlanningConfig, build_world, fresh_data
 from sim.manipulate.candidates import grasp_frame
 from sim.manipulate.planning_world import PlanningWorld
 from sim.scene import load_scene
@@ -115,3 +116,25 @@ def test_a_gripper_plunging_into_the_grasped_link_is_refused(world):
                                          PlanningConfig(gripper_contact_depth=np.inf))
     assert unbounded.arm_contacts(plunged, grasp_point=grasp, grasp_links={0},
                                   grasp_normal=up) == []
+
+
+def test_the_panda_camera_is_not_hidden_by_its_own_housing():
+    """The Panda's wrist camera sits on the face of a box of its hand (another body than the
+    camera's): rays from its centre met that face at distance 0 by rounding, and at
+    pliers_panda's fresh-view pose every grasp candidate was "occluded by" it. A point 30 cm
+    straight ahead of the camera, at 50 random arm poses, is never hidden by the hand."""
+    world = build_world(load_scene("pliers_panda"))
+    pw = PlanningWorld.from_scene(world)
+    m = pw.model
+    hand = {f"geom {g}" for g in range(m.ngeom) if m.body(int(m.geom_bodyid[g])).name.endswith(
+        "hand")} | {m.geom(g).name for g in range(m.ngeom)
+                    if m.body(int(m.geom_bodyid[g])).name.endswith("hand") and m.geom(g).name}
+    assert hand
+    rng = np.random.default_rng(0)
+    lower, upper = pw.kin.lower, pw.kin.upper
+    for _ in range(50):
+        q = np.where(np.isfinite(lower + upper), lower + rng.random(len(lower)) * (upper - lower),
+                     0.0)
+        T = pw.kin.camera_pose(q)
+        (c,) = pw.classify_visibility(q, [GraspCandidate(T[:3, 3] + 0.3 * T[:3, 2], -T[:3, 2])])
+        assert not any(c.visibility.endswith(f"by {h}") for h in hand), c.visibility

@@ -57,6 +57,11 @@ class PlanningConfig:
     around it, lifted this far off the surface, are all blocked: a point at the edge of what
     the camera sees (a back face seen over a panel's rim) is hidden from the model's spheres
     and visible on the true object by a hair, and is called visible"""
+    camera_ray_start: float = 0.001
+    """the camera's rays start this far (m) in front of its centre: the Panda's wrist camera
+    sits on the face of its housing (a box of the hand, another body than the one carrying the
+    camera), and a ray from the centre met that face at distance 0 by rounding -- at the pose of
+    pliers_panda's fresh view every candidate was "occluded by" the housing"""
     gripper_contact_radius: float = 0.03
     """at the grasp pose the gripper may touch the grasped link within this distance (m) of the
     grasp point (it is meant to) ..."""

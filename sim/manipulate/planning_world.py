@@ -142,12 +142,14 @@ class PlanningWorld:
         geomid = np.zeros(1, dtype=np.int32)
         margin = self.config.hidden_margin
 
+        lens = self.config.camera_ray_start
+
         def blocked(p) -> bool:
             ray = p - T[:3, 3]
             dist = float(np.linalg.norm(ray))
-            hit = mujoco.mj_ray(m, d, T[:3, 3], ray / dist, self._groups, 1, self.flange_body,
-                                geomid)
-            return 0 <= hit < dist - self.occlusion_tolerance
+            hit = mujoco.mj_ray(m, d, T[:3, 3] + lens * ray / dist, ray / dist, self._groups, 1,
+                                self.flange_body, geomid)
+            return 0 <= hit < dist - lens - self.occlusion_tolerance
 
         for c in candidates:
             pc = T[:3, :3].T @ (c.point - T[:3, 3])
