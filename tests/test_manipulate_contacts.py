@@ -8,6 +8,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import pytest
+from synthetic import box_faces
 
 import sim  # noqa: F401
 from artrecon.model import ArticulatedModel, Link
@@ -69,31 +70,14 @@ def test_the_travel_is_checked_as_densely_as_the_arm_moves(world, gap):
         assert loose.travel_contacts(q0, q1) == ([], 1.0)
 
 
-def _box_surface(centre, half, step=0.003):
-    """Points on the surface of an axis-aligned box, every ``step``, with outward normals."""
-    pts, nrm = [], []
-    for ax in range(3):
-        u, v = [k for k in range(3) if k != ax]
-        gu = np.arange(-half[u], half[u] + 1e-9, step)
-        gv = np.arange(-half[v], half[v] + 1e-9, step)
-        a, b = (g.ravel() for g in np.meshgrid(gu, gv))
-        for sign in (-1.0, 1.0):
-            p = np.zeros((a.size, 3))
-            p[:, ax], p[:, u], p[:, v] = sign * half[ax], a, b
-            n = np.zeros((a.size, 3))
-            n[:, ax] = sign
-            pts.append(p + centre)
-            nrm.append(n)
-    return np.vstack(pts), np.vstack(nrm)
-
-
 def test_a_gripper_plunging_into_the_grasped_link_is_refused(world):
     """A post 3 cm square, grasped on its top: at the planned standoff the PUMA's fingers
     straddle it and touch nothing; pushed 7 cm further down the palm sinks into the post's top,
     every contact within ``gripper_contact_radius`` of the grasp point (where any depth was
     allowed): refused, and allowed again only with an unbounded ``gripper_contact_depth``."""
     top = 0.45 + 0.08
-    pts, nrm = _box_surface(np.array([0.0, 0.0, top - 0.04]), np.array([0.015, 0.015, 0.04]))
+    pts, nrm = box_faces(np.array([0.0, 0.0, top - 0.04]), np.array([0.015, 0.015, 0.04]),
+                           step=0.003)
     grasp, up = np.array([0.0, 0.0, top]), np.array([0.0, 0.0, 1.0])
     q0 = fresh_data(world).qpos[world.qidx]
     cfg = PlanningConfig()

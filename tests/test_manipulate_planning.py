@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
+from synthetic import box_faces
 
 import sim  # noqa: F401
 from sim.manipulate import GraspCandidate, JointEstimate, PlanningConfig, build_world, fresh_data
@@ -149,24 +150,6 @@ def test_the_feed_forward_model_has_no_contacts_nor_welds(flag):
     assert not world.model.opt.disableflags & bit  # the physics keeps its contacts
 
 
-def _box_surface(centre, half, step=0.002):
-    """Points on the surface of an axis-aligned box, every ``step``, with outward normals."""
-    pts, nrm = [], []
-    for ax in range(3):
-        u, v = [k for k in range(3) if k != ax]
-        gu = np.arange(-half[u], half[u] + 1e-9, step)
-        gv = np.arange(-half[v], half[v] + 1e-9, step)
-        a, b = (g.ravel() for g in np.meshgrid(gu, gv))
-        for sign in (-1.0, 1.0):
-            p = np.zeros((a.size, 3))
-            p[:, ax], p[:, u], p[:, v] = sign * half[ax], a, b
-            n = np.zeros((a.size, 3))
-            n[:, ax] = sign
-            pts.append(p + centre)
-            nrm.append(n)
-    return np.vstack(pts), np.vstack(nrm)
-
-
 def test_the_fingers_straddle_a_handle_rather_than_rest_on_it():
     """A handle (a bar 16 mm high and 10 cm long, across cabinet_door_only's door) grasped on
     its front face: with the gripper rolled by 135 deg the finger pads rest on the bar's edges,
@@ -178,10 +161,10 @@ def test_the_fingers_straddle_a_handle_rather_than_rest_on_it():
     from artrecon.model import ArticulatedModel, Joint, Link
 
     world = build_world(load_scene("cabinet_door_only"))
-    handle, hn = _box_surface(np.array([0.142, 0.06, 0.555]), np.array([0.006, 0.05, 0.008]))
-    door, dn = _box_surface(np.array([0.114, 0.0, 0.556]), np.array([0.006, 0.137, 0.0925]),
+    handle, hn = box_faces(np.array([0.142, 0.06, 0.555]), np.array([0.006, 0.05, 0.008]))
+    door, dn = box_faces(np.array([0.114, 0.0, 0.556]), np.array([0.006, 0.137, 0.0925]),
                             step=0.004)
-    top, tn = _box_surface(np.array([0.0, 0.0, 0.764]), np.array([0.12, 0.15, 0.006]),
+    top, tn = box_faces(np.array([0.0, 0.0, 0.764]), np.array([0.12, 0.15, 0.006]),
                            step=0.004)
     links = [Link(points=p, match_indices=np.full(len(p), -1), normals=n, name=name)
              for p, n, name in ((top, tn, "carcass"),
