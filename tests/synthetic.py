@@ -295,3 +295,22 @@ def find_true_joint(est, truth: list[TrueJoint], mapping: dict[int, int]) -> Tru
         if {t.parent, t.child} == ends:
             return t
     return None
+
+
+def box_faces(centre, half, step=0.002):
+    """Points on the surface of an axis-aligned box, every ``step``, with outward normals: the
+    reconstructed surface of a box-shaped part (the plan's tests). : (n, 3), (n, 3)"""
+    pts, nrm = [], []
+    for ax in range(3):
+        u, v = [k for k in range(3) if k != ax]
+        gu = np.arange(-half[u], half[u] + 1e-9, step)
+        gv = np.arange(-half[v], half[v] + 1e-9, step)
+        a, b = (g.ravel() for g in np.meshgrid(gu, gv))
+        for sign in (-1.0, 1.0):
+            p = np.zeros((a.size, 3))
+            p[:, ax], p[:, u], p[:, v] = sign * half[ax], a, b
+            n = np.zeros((a.size, 3))
+            n[:, ax] = sign
+            pts.append(p + centre)
+            nrm.append(n)
+    return np.vstack(pts), np.vstack(nrm)

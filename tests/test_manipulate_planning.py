@@ -7,9 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
+from synthetic import box_faces
 
 import sim  # noqa: F401
 from sim.manipulate import GraspCandidate, JointEstimate, PlanningConfig, build_world, fresh_data
+from sim.manipulate import candidates as C
 from sim.manipulate import planning as P
 from sim.manipulate.execute import GripConfig, _Run
 from sim.scene import load_scene
@@ -59,9 +61,9 @@ def _face(step=0.002, half=0.02):
 def test_a_point_on_the_rim_of_its_face_is_no_candidate():
     pts, nrm = _face()
     tree, cfg, n = cKDTree(pts), PlanningConfig(), np.array([0.0, 0.0, 1.0])
-    assert P._surrounded(np.zeros(3), n, pts, nrm, tree, cfg)
-    assert not P._surrounded(np.array([0.02, 0.0, 0.0]), n, pts, nrm, tree, cfg)
-    assert not P._surrounded(np.array([0.019, 0.019, 0.0]), n, pts, nrm, tree, cfg)
+    assert C._surrounded(np.zeros(3), n, pts, nrm, tree, cfg)
+    assert not C._surrounded(np.array([0.02, 0.0, 0.0]), n, pts, nrm, tree, cfg)
+    assert not C._surrounded(np.array([0.019, 0.019, 0.0]), n, pts, nrm, tree, cfg)
 
 
 def test_a_candidates_normal_is_its_surfaces_not_its_points():
@@ -75,9 +77,9 @@ def test_a_candidates_normal_is_its_surfaces_not_its_points():
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
     tree, cfg = cKDTree(pts), PlanningConfig()
     mean = nrm[np.linalg.norm(pts, axis=1) < 0.003].mean(axis=0)
-    n = P._plane_normal(np.zeros(3), mean / np.linalg.norm(mean), pts, nrm, tree, cfg)
+    n = C._plane_normal(np.zeros(3), mean / np.linalg.norm(mean), pts, nrm, tree, cfg)
     assert np.degrees(np.arccos(n[2])) < 1.0
-    down = P._plane_normal(np.zeros(3), -mean / np.linalg.norm(mean), pts, -nrm, tree, cfg)
+    down = C._plane_normal(np.zeros(3), -mean / np.linalg.norm(mean), pts, -nrm, tree, cfg)
     assert down[2] < -0.9998
 
 
@@ -148,24 +150,6 @@ def test_the_feed_forward_model_has_no_contacts_nor_welds(flag):
     assert not world.model.opt.disableflags & bit  # the physics keeps its contacts
 
 
-def _box_surface(centre, half, step=0.002):
-    """Points on the surface of an axis-aligned box, every ``step``, with outward normals."""
-    pts, nrm = [], []
-    for ax in range(3):
-        u, v = [k for k in range(3) if k != ax]
-        gu = np.arange(-half[u], half[u] + 1e-9, step)
-        gv = np.arange(-half[v], half[v] + 1e-9, step)
-        a, b = (g.ravel() for g in np.meshgrid(gu, gv))
-        for sign in (-1.0, 1.0):
-            p = np.zeros((a.size, 3))
-            p[:, ax], p[:, u], p[:, v] = sign * half[ax], a, b
-            n = np.zeros((a.size, 3))
-            n[:, ax] = sign
-            pts.append(p + centre)
-            nrm.append(n)
-    return np.vstack(pts), np.vstack(nrm)
-
-
 def test_the_fingers_straddle_a_handle_rather_than_rest_on_it():
     """A handle (a bar 16 mm high and 10 cm long, across cabinet_door_only's door) grasped on
     its front face: with the gripper rolled by 135 deg the finger pads rest on the bar's edges,
@@ -177,10 +161,10 @@ def test_the_fingers_straddle_a_handle_rather_than_rest_on_it():
     from artrecon.model import ArticulatedModel, Joint, Link
 
     world = build_world(load_scene("cabinet_door_only"))
-    handle, hn = _box_surface(np.array([0.142, 0.06, 0.555]), np.array([0.006, 0.05, 0.008]))
-    door, dn = _box_surface(np.array([0.114, 0.0, 0.556]), np.array([0.006, 0.137, 0.0925]),
+    handle, hn = box_faces(np.array([0.142, 0.06, 0.555]), np.array([0.006, 0.05, 0.008]))
+    door, dn = box_faces(np.array([0.114, 0.0, 0.556]), np.array([0.006, 0.137, 0.0925]),
                             step=0.004)
-    top, tn = _box_surface(np.array([0.0, 0.0, 0.764]), np.array([0.12, 0.15, 0.006]),
+    top, tn = box_faces(np.array([0.0, 0.0, 0.764]), np.array([0.12, 0.15, 0.006]),
                            step=0.004)
     links = [Link(points=p, match_indices=np.full(len(p), -1), normals=n, name=name)
              for p, n, name in ((top, tn, "carcass"),

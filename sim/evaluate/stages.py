@@ -86,9 +86,18 @@ def _configuration_sources() -> str:
 @functools.cache
 def _manipulate_sources() -> str:
     from sim import manipulate, robot, scene, views
-    from sim.manipulate import estimate, execute, planning, world
+    from sim.manipulate import (
+        candidates,
+        estimate,
+        execute,
+        planning,
+        planning_config,
+        planning_world,
+        world,
+    )
 
-    return cache.source_hash([manipulate, estimate, execute, planning, world, robot, scene, views])
+    return cache.source_hash([manipulate, estimate, execute, candidates, planning, planning_config,
+                              planning_world, world, robot, scene, views])
 
 
 def _capture_inputs(scene: Scene, configuration: str, ev: EvalConfig, scene_hash: str) -> dict:

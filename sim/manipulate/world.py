@@ -1,7 +1,7 @@
 """The simulated world the arm acts in: the scene compiled with one grasp weld per object body.
 
 This is the simulator's side: physics, the true object. The robot's decisions are made in a
-:class:`sim.manipulate.planning.PlanningWorld`, which knows the stage and the arm but sees the
+:class:`sim.manipulate.planning_world.PlanningWorld`, which knows the stage and the arm but sees the
 object only through the registered model.
 """
 

@@ -1,0 +1,299 @@
+"""The planning world: the scene's stage and arm with the object replaced by the registered model.
+
+:class:`PlanningWorld` holds one small sphere per voxel of the model's points (every link,
+configuration A), which MuJoCo's collision detection and ray casting then treat like any other
+geom. Every question the plan asks is asked there:
+
+- whether a candidate is hidden from the wrist camera at the arm's current pose: a ray from the
+  camera centre meets the model (or the stage) before the point, or the point is outside the
+  image (:meth:`PlanningWorld.classify_visibility`);
+- free space in front of a candidate (:meth:`PlanningWorld.clear`) and its clearance from the
+  parts that do not move with it (:meth:`PlanningWorld.fixed_clearance`);
+- contacts of the arm at a configuration (:meth:`PlanningWorld.arm_contacts`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+
+import mujoco
+import numpy as np
+from scipy.spatial import cKDTree
+
+from sim import robot, views
+from sim.camera import mujoco_camera_intrinsics
+from sim.manipulate.candidates import GraspCandidate, tangents, voxel_centres
+from sim.manipulate.planning_config import PlanningConfig
+from sim.manipulate.world import World
+
+log = logging.getLogger(__name__)
+
+#: Geom group of collision geoms (stage, arm, and in a PlanningWorld the model's spheres): the
+#: rays of the plan see these and nothing else.
+COLLISION_GROUP = 3
+#: Group the true object's geoms are moved to in a model-based PlanningWorld (no ray sees them,
+#: nothing collides with them).
+HIDDEN_GROUP = 5
+
+
+class PlanningWorld:
+    """The stage and the arm, with the object as the robot knows it (see the module docstring).
+
+    Build with :meth:`from_model` (the registered model: what the harness uses) or
+    :meth:`from_scene` (the true object: demonstrations only).
+    """
+
+    def __init__(self, world: World, model: mujoco.MjModel, source: str, config: PlanningConfig,
+                 model_geoms: dict, occlusion_tolerance: float, contact_margin: float = 0.0):
+        self.world = world
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.data.qpos[:] = world.qpos_start
+        mujoco.mj_forward(model, self.data)
+        self.kin = robot.load_arm_kinematics(model)
+        self.qidx = robot.qpos_indices(model, self.kin)
+        self.arm_links = views.arm_link_bodies(model, self.kin)
+        arm = robot.arm_spec(model)
+        self.flange_body = model.body(arm.prefix + arm.flange_body).id
+        self.gripper_bodies = {b for b in range(model.nbody) if self._below(b, self.flange_body)}
+        self.source = source
+        self.config = config
+        self.model_geoms = model_geoms
+        """model sphere geom id -> the model link it stands for"""
+        self.occlusion_tolerance = occlusion_tolerance
+        self.contact_margin = contact_margin
+        """the model geoms' compiled contact margin (m): the clearance the travel can be checked
+        with (the registered model's spheres: ``travel_clearance``; the true object: none)"""
+        self._groups = np.zeros(6, dtype=np.uint8)
+        self._groups[COLLISION_GROUP] = 1
+
+    def _below(self, b: int, root: int) -> bool:
+        while b > 0 and b != root:
+            b = int(self.model.body_parentid[b])
+        return b == root
+
+    @classmethod
+    def from_model(cls, world: World, registered,
+                   config: PlanningConfig | None = None) -> PlanningWorld:
+        """The stage and arm of the scene file, the object replaced by ``registered`` (an
+        ArticulatedModel in the robot frame, metres): spheres at its points' voxels."""
+        config = config or PlanningConfig()
+        if not registered.scale_known:
+            raise ValueError("plan from a registered model (robot frame, metres)")
+        spec = mujoco.MjSpec.from_file(str(world.path))
+        body = spec.worldbody.add_body(name="registered_model")
+        n_points = 0
+        for li, lk in enumerate(registered.links):
+            pts = np.asarray(lk.points, float)
+            n_points += len(pts)
+            for k, c in enumerate(voxel_centres(pts, config.voxel, config.min_sphere_points)):
+                body.add_geom(name=f"model_link{li}_{k}", type=mujoco.mjtGeom.mjGEOM_SPHERE,
+                              size=[config.sphere_radius, 0, 0], pos=c, contype=1,
+                              conaffinity=1, group=COLLISION_GROUP, rgba=[0.9, 0.6, 0.1, 1.0],
+                              margin=config.travel_clearance, gap=config.travel_clearance)
+        # the margin (compiled in: MuJoCo's bounding boxes include it, a margin set after
+        # compiling finds nothing) makes MuJoCo report the arm's passes closer than
+        # travel_clearance as contacts of positive distance; arm_contacts counts those only
+        # on the travel (travel_contacts), every other check only contacts of negative distance
+        model = spec.compile()
+        # the true object is no part of the robot's knowledge: nothing collides with it and no
+        # ray of the plan sees it
+        obj = world.object_bodies
+        for g in range(model.ngeom):
+            if int(model.geom_bodyid[g]) in obj:
+                model.geom_contype[g] = 0
+                model.geom_conaffinity[g] = 0
+                model.geom_group[g] = HIDDEN_GROUP
+        bid = model.body("registered_model").id
+        geoms = {g: int(model.geom(g).name.split("_")[1][4:]) for g in range(model.ngeom)
+                 if int(model.geom_bodyid[g]) == bid}
+        log.info("planning world: %d model spheres (%.0f mm voxels) for %d model points",
+                 len(geoms), 1e3 * config.voxel, n_points)
+        return cls(world, model, "registered model", config, geoms,
+                   config.sphere_radius + config.occlusion_margin, config.travel_clearance)
+
+    @classmethod
+    def from_scene(cls, world: World, config: PlanningConfig | None = None
+                   ) -> PlanningWorld:
+        """The true world (demonstrations along the true joint and scoring's force reference;
+        never the harness's plan). The object's geoms stand in for the model's spheres, each
+        under its body's id (``moving_links`` are then body ids)."""
+        config = config or PlanningConfig()
+        m = world.model
+        geoms = {g: int(m.geom_bodyid[g]) for g in range(m.ngeom)
+                 if int(m.geom_bodyid[g]) in world.object_bodies}
+        return cls(world, m, "true object (demonstration)", config, geoms,
+                   config.occlusion_margin)
+
+    # ------------------------------------------------------------------ questions to the world
+    def classify_visibility(self, q, candidates) -> list[GraspCandidate]:
+        """Each candidate hidden or visible from the wrist camera at arm configuration ``q``:
+        hidden when outside the image, or when the ray from the camera centre meets a surface
+        of the plan (the model, the stage, the arm) before the point and before the points
+        around it (:attr:`PlanningConfig.hidden_margin`; the first ray's occluder is named)."""
+        m, d = self.model, self.data
+        cam = self.kin.spec.prefix + self.kin.spec.camera
+        K, (w, h) = mujoco_camera_intrinsics(m, cam)
+        T = self.kin.camera_pose(q)
+        d.qpos[self.qidx] = q
+        mujoco.mj_forward(m, d)
+        out = []
+        geomid = np.zeros(1, dtype=np.int32)
+        margin = self.config.hidden_margin
+
+        lens = self.config.camera_ray_start
+
+        def blocked(p) -> bool:
+            ray = p - T[:3, 3]
+            dist = float(np.linalg.norm(ray))
+            hit = mujoco.mj_ray(m, d, T[:3, 3] + lens * ray / dist, ray / dist, self._groups, 1,
+                                self.flange_body, geomid)
+            return 0 <= hit < dist - lens - self.occlusion_tolerance
+
+        for c in candidates:
+            pc = T[:3, :3].T @ (c.point - T[:3, 3])
+            uv = K @ pc
+            if pc[2] <= 0 or not (0 <= uv[0] / uv[2] < w and 0 <= uv[1] / uv[2] < h):
+                out.append(GraspCandidate(c.point, c.normal, True, "outside the image"))
+                continue
+            if not blocked(c.point):
+                out.append(GraspCandidate(c.point, c.normal, False, "visible"))
+                continue
+            g = int(geomid[0])
+            what = ("the model" if g in self.model_geoms else
+                    mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom {g}")
+            if margin > 0:
+                u, v = tangents(c.normal)
+                lifted = c.point + margin * c.normal
+                around = [lifted] + [lifted + margin * t for t in (u, -u, v, -v)]
+                if not all(blocked(p) for p in around):
+                    out.append(GraspCandidate(c.point, c.normal, False,
+                                              f"visible at the edge of {what}"))
+                    continue
+            out.append(GraspCandidate(c.point, c.normal, True, f"occluded by {what}"))
+        return out
+
+    def clear(self, candidates) -> list[GraspCandidate]:
+        """Candidates with free space in front of them: a bundle of rays along the normal (the
+        centre and four around it) meets nothing for ``approach_free_length``."""
+        cfg = self.config
+        geomid = np.zeros(1, dtype=np.int32)
+        start = max(1e-3, 1.5 * (self.occlusion_tolerance - cfg.occlusion_margin))
+        out = []
+        for c in candidates:
+            u, v = tangents(c.normal)
+            starts = [c.point + start * c.normal]
+            starts += [c.point + (cfg.grasp_standoff + 1e-3) * c.normal + cfg.approach_radius * w
+                       for w in (u, -u, v, -v)]
+            if all(not 0 <= mujoco.mj_ray(self.model, self.data, p0, c.normal, self._groups, 1,
+                                          -1, geomid) < cfg.approach_free_length
+                   for p0 in starts):
+                out.append(c)
+        return out
+
+    def fixed_clearance(self, candidates, moving_links=()) -> list[GraspCandidate]:
+        """Each candidate with its :attr:`GraspCandidate.clearance`: the distance to the nearest
+        model sphere of a link not in ``moving_links`` (in a world planned on the true object:
+        not measured)."""
+        moving = set(moving_links)
+        fixed = [g for g, link in self.model_geoms.items() if link not in moving]
+        if self.source != "registered model" or not fixed or not candidates:
+            return list(candidates)
+        dist, _ = cKDTree(self.data.geom_xpos[fixed]).query(
+            np.array([c.point for c in candidates]))
+        return [dataclasses.replace(c, clearance=float(d))
+                for c, d in zip(candidates, dist, strict=True)]
+
+    def _on_grasped_face(self, p, contact_dist, grasp_point, grasp_normal) -> bool:
+        """A model sphere at ``p``, met at ``contact_dist`` (m, MuJoCo's contact distance:
+        negative when the geoms overlap), that the gripper at the grasp pose may touch: within
+        ``gripper_contact_radius`` of the grasp point and no deeper than
+        ``gripper_contact_depth``, or (``grasp_normal`` given) grazed by the fingertips on the
+        grasped face (:attr:`PlanningConfig.face_contact_radius`, ``face_contact_depth``): the
+        fingertips stop 3 mm short of the surface and the spheres stand 4 mm out of it."""
+        cfg = self.config
+        dist = float(np.linalg.norm(np.asarray(p, float) - grasp_point))
+        if dist < cfg.gripper_contact_radius and contact_dist > -cfg.gripper_contact_depth:
+            return True
+        return bool(grasp_normal is not None and dist < cfg.face_contact_radius
+                    and contact_dist > -cfg.face_contact_depth)
+
+    def gripper_contacts(self, q) -> int:
+        """How many contacts the gripper (the bodies below the flange) has with the model (every
+        link; in a world planned on the true object, the object's geoms) at configuration
+        ``q``, the allowed ones included (:meth:`arm_contacts`)."""
+        m, d = self.model, self.data
+        d.qpos[self.qidx] = q
+        mujoco.mj_forward(m, d)
+        return sum(1 for c in d.contact[: d.ncon]
+                   if c.dist < 0
+                   and {int(m.geom_bodyid[c.geom[0]]), int(m.geom_bodyid[c.geom[1]])}
+                   & self.gripper_bodies
+                   and (int(c.geom[0]) in self.model_geoms or int(c.geom[1]) in self.model_geoms))
+
+    def arm_contacts(self, q, grasp_point=None, grasp_links=(), moving_links=(),
+                     grasp_normal=None, clearance: float = 0.0) -> list[str]:
+        """Contacts of the arm at configuration ``q`` in the plan's world. With ``grasp_point``,
+        the gripper touching the grasped link (a model link of ``grasp_links``) within
+        ``gripper_contact_radius`` of it, no deeper than ``gripper_contact_depth``, is allowed
+        -- never another link, nor the stage; the model links in ``moving_links`` (the grasped
+        link and those it carries, during the motion: they move with the gripper) are not
+        obstacles. With ``grasp_normal`` too, the gripper may also touch the grasped face under
+        its fingers (:meth:`_on_grasped_face`). With ``clearance`` (m, at most
+        :attr:`contact_margin`), a pass of the arm closer than that to a model geom counts as a
+        contact too."""
+        m, d = self.model, self.data
+        d.qpos[self.qidx] = q
+        mujoco.mj_forward(m, d)
+        moving = set(moving_links)
+        out = []
+        for c in d.contact[: d.ncon]:
+            if c.dist >= clearance:
+                continue
+            g1, g2 = int(c.geom[0]), int(c.geom[1])
+            b1, b2 = int(m.geom_bodyid[g1]), int(m.geom_bodyid[g2])
+            if b1 not in self.arm_links and b2 not in self.arm_links:
+                continue
+            arm_b, other = (b1, g2) if b1 in self.arm_links else (b2, g1)
+            if other in self.model_geoms and self.model_geoms[other] in moving:
+                continue
+            if (grasp_point is not None and arm_b in self.gripper_bodies
+                    and self.model_geoms.get(other) in set(grasp_links)
+                    and self._on_grasped_face(d.geom_xpos[other], float(c.dist), grasp_point,
+                                              grasp_normal)):
+                continue
+            name = [(f"model link {self.model_geoms[g]}" if g in self.model_geoms else
+                     mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom{g}")
+                    for g in (g1, g2)]
+            out.append("/".join(name))
+        return sorted(set(out))
+
+    def travel_contacts(self, q_from, q_to) -> tuple[list[str], float]:
+        """Contacts of the arm along the straight joint-space line from ``q_from`` to ``q_to``
+        (the travel to the pre-grasp pose, as execution follows it), its ends left out (the
+        start is where the arm is; the end is checked on its own): configurations no more than
+        :attr:`PlanningConfig.travel_joint_step` apart in any joint; a pass of the arm closer
+        than :attr:`PlanningConfig.travel_clearance` to the model counts as a contact (in a
+        world planned on the true object: a touch).
+
+        Returns
+        -------
+        hits : list of str
+            The contacts (:meth:`arm_contacts`) at the first configuration that has any; empty
+            when the line is clear.
+        at : float
+            Where along the line (0 at ``q_from``, 1 at ``q_to``; 1.0 when clear).
+        """
+        q_from, q_to = np.asarray(q_from, float), np.asarray(q_to, float)
+        span = float(np.max(np.abs(q_to - q_from))) if len(q_from) else 0.0
+        n = max(2, int(np.ceil(span / self.config.travel_joint_step)))
+        clearance = min(self.config.travel_clearance, self.contact_margin)
+        for f in np.arange(1, n) / n:
+            hits = self.arm_contacts(q_from + f * (q_to - q_from), clearance=clearance)
+            if hits:
+                return hits, float(f)
+        return [], 1.0
+
+
+__all__ = ["COLLISION_GROUP", "HIDDEN_GROUP", "PlanningWorld"]

@@ -1,0 +1,124 @@
+"""The plan's contact and visibility checks (issue 21): the travel to the pre-grasp pose is
+checked as densely as the arm moves and keeps a clearance from the model, the gripper at the
+grasp pose may touch the grasped link near the grasp point but not plunge into it, and the
+wrist camera's rays do not start inside its own housing."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+from synthetic import box_faces
+
+import sim  # noqa: F401
+from artrecon.model import ArticulatedModel, Link
+from sim.manipulate import GraspCandidate, PlanningConfig, build_world, fresh_data
+from sim.manipulate.candidates import grasp_frame
+from sim.manipulate.planning_world import PlanningWorld
+from sim.scene import load_scene
+
+
+@pytest.fixture(scope="module")
+def world():
+    return build_world(load_scene("pliers"))
+
+
+def _model(points, normals=None) -> ArticulatedModel:
+    points = np.asarray(points, float)
+    normals = np.tile([0.0, 0.0, 1.0], (len(points), 1)) if normals is None else normals
+    link = Link(points=points, match_indices=np.full(len(points), -1), normals=normals,
+                name="part")
+    return ArticulatedModel(links=[link], joints=[], scale_known=True)
+
+
+def _finger_pose(pw: PlanningWorld, q):
+    """Position, orientation and half-size of one of the PUMA's finger boxes at ``q``."""
+    m, d = pw.model, pw.data
+    finger = next(g for g in range(m.ngeom) if int(m.geom_bodyid[g]) in pw.gripper_bodies
+                  and m.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX and m.geom_contype[g]
+                  and np.isclose(m.geom_size[g][2], 0.03))
+    d.qpos[pw.qidx] = q
+    mujoco.mj_forward(m, d)
+    return d.geom_xpos[finger].copy(), d.geom_xmat[finger].reshape(3, 3).copy(), \
+        m.geom_size[finger].copy()
+
+
+@pytest.mark.parametrize("gap", [-0.002, 0.002])
+def test_the_travel_is_checked_as_densely_as_the_arm_moves(world, gap):
+    """The arm swings its first joint by 1 rad (the fingertips move ~4 cm between the 12 checks
+    the travel had) past one model sphere that a fingertip meets 2 mm deep (gap -2 mm) or passes
+    2 mm off (gap +2 mm) between two of those checks: the 12 checks see nothing, the travel
+    check (a configuration every ``travel_joint_step``, ``travel_clearance`` kept) refuses the
+    line; with a clearance under the gap the pass is allowed."""
+    q0 = fresh_data(world).qpos[world.qidx].copy()
+    q1 = q0.copy()
+    q1[1] += 1.0
+    line = [q0 + f * (q1 - q0) for f in np.linspace(0.0, 1.0, 14)[1:-1]]
+    mid = q0 + 1.5 / 13 * (q1 - q0)  # between the first two of the 12 checks
+    p, R, half = _finger_pose(PlanningWorld.from_scene(world), mid)
+    r = PlanningConfig().sphere_radius
+    sphere = p + R[:, 2] * (half[2] + r + gap)  # beyond the fingertip, along the finger
+    pw = PlanningWorld.from_model(world, _model([sphere, sphere]))
+    assert not any(pw.arm_contacts(q) for q in line)  # the old 12 checks: clear
+    assert bool(pw.arm_contacts(mid)) == (gap < 0)
+    hits, at = pw.travel_contacts(q0, q1)
+    assert hits and all("model link 0" in h for h in hits)
+    assert 0.0 < at < 2 / 13
+    if gap > 0:
+        loose = PlanningWorld.from_model(world, _model([sphere, sphere]),
+                                         PlanningConfig(travel_clearance=0.5 * gap))
+        assert loose.travel_contacts(q0, q1) == ([], 1.0)
+
+
+def test_a_gripper_plunging_into_the_grasped_link_is_refused(world):
+    """A post 3 cm square, grasped on its top: at the planned standoff the PUMA's fingers
+    straddle it and touch nothing; pushed 7 cm further down the palm sinks into the post's top,
+    every contact within ``gripper_contact_radius`` of the grasp point (where any depth was
+    allowed): refused, and allowed again only with an unbounded ``gripper_contact_depth``."""
+    top = 0.45 + 0.08
+    pts, nrm = box_faces(np.array([0.0, 0.0, top - 0.04]), np.array([0.015, 0.015, 0.04]),
+                           step=0.003)
+    grasp, up = np.array([0.0, 0.0, top]), np.array([0.0, 0.0, 1.0])
+    q0 = fresh_data(world).qpos[world.qidx]
+    cfg = PlanningConfig()
+
+    def q_at(standoff):
+        ik = world.kin.solve_ik(grasp_frame(grasp, up, 0.0, standoff), "grasp", q0, seed=0)
+        assert ik.success
+        return ik.q
+
+    pw = PlanningWorld.from_model(world, _model(pts, nrm))
+    held, plunged = q_at(cfg.grasp_standoff), q_at(cfg.grasp_standoff - 0.07)
+    assert pw.arm_contacts(held, grasp_point=grasp, grasp_links={0}, grasp_normal=up) == []
+    hits = pw.arm_contacts(plunged, grasp_point=grasp, grasp_links={0}, grasp_normal=up)
+    assert hits and all("model link 0" in h for h in hits)
+    d = pw.data
+    near = [np.linalg.norm(d.geom_xpos[g] - grasp) for c in d.contact[: d.ncon] if c.dist < 0
+            for g in (int(c.geom[0]), int(c.geom[1])) if g in pw.model_geoms]
+    assert near and max(near) < cfg.gripper_contact_radius
+    unbounded = PlanningWorld.from_model(world, _model(pts, nrm),
+                                         PlanningConfig(gripper_contact_depth=np.inf))
+    assert unbounded.arm_contacts(plunged, grasp_point=grasp, grasp_links={0},
+                                  grasp_normal=up) == []
+
+
+def test_the_panda_camera_is_not_hidden_by_its_own_housing():
+    """The Panda's wrist camera sits on the face of a box of its hand (another body than the
+    camera's): rays from its centre met that face at distance 0 by rounding, and at
+    pliers_panda's fresh-view pose every grasp candidate was "occluded by" it. A point 30 cm
+    straight ahead of the camera, at 50 random arm poses, is never hidden by the hand."""
+    world = build_world(load_scene("pliers_panda"))
+    pw = PlanningWorld.from_scene(world)
+    m = pw.model
+    hand = {f"geom {g}" for g in range(m.ngeom) if m.body(int(m.geom_bodyid[g])).name.endswith(
+        "hand")} | {m.geom(g).name for g in range(m.ngeom)
+                    if m.body(int(m.geom_bodyid[g])).name.endswith("hand") and m.geom(g).name}
+    assert hand
+    rng = np.random.default_rng(0)
+    lower, upper = pw.kin.lower, pw.kin.upper
+    for _ in range(50):
+        q = np.where(np.isfinite(lower + upper), lower + rng.random(len(lower)) * (upper - lower),
+                     0.0)
+        T = pw.kin.camera_pose(q)
+        (c,) = pw.classify_visibility(q, [GraspCandidate(T[:3, 3] + 0.3 * T[:3, 2], -T[:3, 2])])
+        assert not any(c.visibility.endswith(f"by {h}") for h in hand), c.visibility
