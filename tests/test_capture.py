@@ -316,7 +316,7 @@ def test_fill_and_distance_are_inverse():
 def test_candidate_rings_prefer_the_desired_elevation_then_the_preferred_fill():
     K = np.array([[554.0, 0, 319.5], [0, 554.0, 239.5], [0, 0, 1]])
     cfg = views.ViewPlanConfig()
-    cands = list(views._candidates(cfg, 60.0, 0.2, K, 640, 480, 10.0, 80.0))
+    cands = list(views.candidates(cfg, 60.0, 0.2, K, 640, 480, 10.0, 80.0))
     el0, d0, f0 = cands[0]
     assert el0 == 60.0 and f0 == pytest.approx(cfg.fill)
     els = [c[0] for c in cands]
