@@ -52,6 +52,7 @@ from sim.scene.load import (
     JOINT_TYPES,
     OBJECT_BODY,
     SETTINGS_PREFIX,
+    body_subtree,
     load_scene,
     physics_warnings,
 )
@@ -69,6 +70,6 @@ __all__ = [
     "BUNDLED_SCENES_DIR", "CONFIGURATIONS", "CONFIG_PREFIX", "HOLD_PREFIX", "HOLD_SOLIMP",
     "HOLD_SOLREF", "JOINT_TYPES", "NON_SCENE_FILES", "OBJECT_BODY", "SCENES_DIR",
     "SETTINGS_PREFIX", "STAGE_FILES", "STATIC_TOLERANCE", "Coupling", "Joint", "Link", "Scene",
-    "SceneError", "add_joint_holds", "hold_joints", "list_scenes", "load_scene",
+    "SceneError", "add_joint_holds", "body_subtree", "hold_joints", "list_scenes", "load_scene",
     "physics_warnings", "release_joints", "scene_path", "stage_file",
 ]

@@ -45,8 +45,9 @@ def _name(model: mujoco.MjModel, obj: mujoco.mjtObj, i: int) -> str:
     return mujoco.mj_id2name(model, obj, i) or ""
 
 
-def _object_bodies(model: mujoco.MjModel, root: int) -> list[int]:
-    """``root`` and all its descendants, in body order (parents come before children)."""
+def body_subtree(model: mujoco.MjModel, root: int) -> list[int]:
+    """Body ids of ``root`` and all its descendants, in body order (MuJoCo numbers a parent
+    before its children)."""
     inside = {root}
     for b in range(root + 1, model.nbody):
         if int(model.body_parentid[b]) in inside:
@@ -192,7 +193,7 @@ def load_scene(name_or_path: str | os.PathLike) -> Scene:
             f'"{OBJECT_BODY}" (<body name="{OBJECT_BODY}" pos="0 0 0.45"> on the table centre)')
     if root == 0:
         raise SceneError(f'{path}: "{OBJECT_BODY}" must be a body of the object, not the world')
-    bodies = _object_bodies(model, root)
+    bodies = body_subtree(model, root)
 
     # Joints of the object, checked one by one.
     joint_ids: dict[str, int] = {}

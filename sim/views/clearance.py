@@ -7,6 +7,7 @@ import mujoco
 import numpy as np
 
 from sim import robot
+from sim.scene import body_subtree
 
 #: Clearance (m) the planned arm keeps from everything that is not the robot (object, table,
 #: floor) at every view and at every checked step of the moves between views. The servos follow
@@ -30,14 +31,7 @@ def arm_link_bodies(model: mujoco.MjModel, kin: robot.ArmKinematics) -> set[int]
 def _bodies_moved_by(model: mujoco.MjModel, joint: str) -> set[int]:
     """The body of ``joint`` and every body below it."""
     root = int(model.jnt_bodyid[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, joint)])
-    out = set()
-    for b in range(model.nbody):
-        c = b
-        while c > 0 and c != root:
-            c = int(model.body_parentid[c])
-        if c == root:
-            out.add(b)
-    return out
+    return set(body_subtree(model, root))
 
 
 def arm_collisions(model: mujoco.MjModel, data: mujoco.MjData, links: set[int]) -> list[str]:

@@ -7,6 +7,7 @@ import mujoco
 import numpy as np
 
 from sim import robot
+from sim.scene import body_subtree
 from sim.views.records import Ring, View, ViewPlanConfig
 
 #: Smallest ring radius (m): the wrist camera's near clipping distance (sim.render.ZNEAR, 0.15 m)
@@ -20,14 +21,7 @@ def object_bodies(model: mujoco.MjModel, root: str = "object") -> list[int]:
     if root_id < 0:
         raise ValueError(f"the model has no body named {root!r}; a scene's object must have its "
                          "root body named 'object' (scenes/stage.xml)")
-    out = []
-    for b in range(model.nbody):
-        c = b
-        while c > 0 and c != root_id:
-            c = int(model.body_parentid[c])
-        if c == root_id:
-            out.append(b)
-    return out
+    return body_subtree(model, root_id)
 
 
 def object_bounding_sphere(model: mujoco.MjModel, data: mujoco.MjData,
