@@ -77,6 +77,7 @@ import numpy as np
 import sim  # noqa: F401  (EGL before OpenGL)
 from sim import capture, render, robot, views
 from sim.camera import convert_camera_pose, mujoco_camera_intrinsics
+from sim.capture import files as capture_files
 from sim.scene import list_scenes, load_scene
 
 
@@ -95,11 +96,11 @@ def _commit() -> str:
 
 def _write_pngs(out, tmp: Path) -> None:
     items = ((out.color, tmp / "c.png", "colour"),
-             (capture._depth_png(out.depth), tmp / "d.png", "depth"),
-             (capture._labels_png(out.labels), tmp / "l.png", "labels"))
+             (capture_files.depth_png(out.depth), tmp / "d.png", "depth"),
+             (capture_files.labels_png(out.labels), tmp / "l.png", "labels"))
     if not hasattr(capture, "PNG_PARAMS"):  # the writer before 2fe836a took (array, path)
         items = tuple(i[:2] for i in items)
-    capture._write_pngs(items)
+    capture_files.write_pngs(items)
 
 
 def bench_render(name: str, frames: int, config: str = "a") -> dict:
@@ -118,7 +119,7 @@ def bench_render(name: str, frames: int, config: str = "a") -> dict:
     arm_root = int(model.jnt_bodyid[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT,
                                                       kin.joint_names[0])])
     t0 = _cpu()
-    r = render.MjRenderer(model, geom_labels=capture._geom_labels(model, sc, arm_root))
+    r = render.MjRenderer(model, geom_labels=capture_files.geom_labels(model, sc, arm_root))
     build = _cpu() - t0
     qidx = robot.qpos_indices(model, kin)
     parts = {k: [] for k in ("update", "colour", "gt", "convert", "png")}
@@ -139,8 +140,8 @@ def bench_render(name: str, frames: int, config: str = "a") -> dict:
                 t2 = _cpu()
                 out = r.render(None, K, T, w, h, depth=True, labels=True)
                 t3 = _cpu()
-                capture._depth_png(out.depth)
-                capture._labels_png(out.labels)
+                capture_files.depth_png(out.depth)
+                capture_files.labels_png(out.labels)
                 t4 = _cpu()
                 _write_pngs(out, Path(tmp))
                 t5 = _cpu()

@@ -163,10 +163,10 @@ def apply_motion(scene: Scene, motion_deg: float | None = None,
 
 def object_textures(model, scene: Scene) -> list[int]:
     """Ids of the colour textures of the object's geoms (its links' bodies), sorted."""
-    from sim.render import _material_texture
+    from sim.render import material_texture  # pyrender and OpenGL: imported only when needed
 
     bodies = {b for li in scene.links for b in li.body_ids}
-    tex = {_material_texture(model, int(model.geom_matid[g])) for g in range(model.ngeom)
+    tex = {material_texture(model, int(model.geom_matid[g])) for g in range(model.ngeom)
            if int(model.geom_bodyid[g]) in bodies}
     return sorted(t for t in tex if t >= 0)
 

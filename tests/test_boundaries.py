@@ -19,9 +19,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("artrecon", "sim")
 
-#: The modules that may name the ground-truth folder in code: the writer and the scoring side.
-GROUND_TRUTH_READERS = {"sim.capture", "sim.perturb", "sim.evaluate.scoring",
-                        "sim.evaluate.pictures"}
+#: The modules that may name the ground-truth folder in code: the writers (the capture of an
+#: image set and of the fresh view) and the scoring side.
+GROUND_TRUTH_READERS = {"sim.capture.image_set", "sim.capture.fresh", "sim.perturb",
+                        "sim.evaluate.scoring", "sim.evaluate.pictures"}
 
 
 def _modules() -> dict[str, Path]:
@@ -99,7 +100,7 @@ def test_only_the_scoring_side_names_the_ground_truth(name):
 
 def test_the_scoring_side_is_where_the_ground_truth_is_read():
     """The allowed readers do read it (a stale list would let a new reader in unnoticed)."""
-    for name in ("sim.capture", "sim.evaluate.scoring"):
+    for name in ("sim.capture.image_set", "sim.capture.fresh", "sim.evaluate.scoring"):
         assert any("ground_truth" in s for s in _code_strings(MODULES[name])), name
 
 

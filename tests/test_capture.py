@@ -16,9 +16,12 @@ import pytest
 from PIL import Image
 
 from sim import capture as C
-from sim import robot, views
+from sim import render, robot, views
 from sim.camera import mujoco_camera_intrinsics
-from sim.scene import HOLD_PREFIX, load_scene
+from sim.capture.arm import MIN_JERK_PEAK_SPEED, Arm
+from sim.capture.files import write_pngs
+from sim.capture.image_set import OBJECT_DRIFT_TOL
+from sim.scene import BUNDLED_SCENES_DIR, HOLD_PREFIX, load_scene
 
 #: Rendered depth, back-projected with the recorded (FK) pose, must lie within this of the true
 #: surface (issue 3).
@@ -71,7 +74,7 @@ def test_image_set_layout_and_fk_poses(pliers_set):
         labels = np.asarray(Image.open(out / "ground_truth" / "labels" / im["file"]))
         assert 0.01 < np.mean(labels < C.LABEL_PNG_ARM) < 0.9
         # the object did not move
-        assert gt["object_joints"] == pytest.approx(sc.configuration("b"), abs=C.OBJECT_DRIFT_TOL)
+        assert gt["object_joints"] == pytest.approx(sc.configuration("b"), abs=OBJECT_DRIFT_TOL)
     assert truth["object_joints"] == sc.configuration("b")
     # ground truth never sits beside what artrecon reads
     assert "object_joints" not in json.dumps(cams)
@@ -87,7 +90,7 @@ def test_written_pngs_hold_the_arrays_exactly(tmp_path):
     labels = rng.integers(0, 256, (48, 64), dtype=np.uint8)
     items = [(colour, tmp_path / "c.png", "colour"), (depth, tmp_path / "d.png", "depth"),
              (labels, tmp_path / "l.png", "labels")]
-    assert C._write_pngs(items) >= 0.0
+    assert write_pngs(items) >= 0.0
     for array, path, _ in items:
         back = np.asarray(Image.open(path))
         assert back.dtype == array.dtype
@@ -183,7 +186,7 @@ def test_a_cached_plan_gives_the_same_files_without_solving_again(pliers_set, tm
 
 
 def test_the_plan_cache_is_keyed_by_the_compiled_scene_and_the_plan_settings(tmp_path):
-    scenes = Path(C.__file__).resolve().parent.parent / "scenes"
+    scenes = BUNDLED_SCENES_DIR
     text = (scenes / "pliers.xml").read_text()
     text = text.replace('<include file="stage.xml"/>', f'<include file="{scenes}/stage.xml"/>')
     text = text.replace('file="assets/', f'file="{scenes}/assets/')
@@ -213,7 +216,7 @@ def test_the_plan_cache_is_keyed_by_the_compiled_scene_and_the_plan_settings(tmp
 
 def test_failed_capture_leaves_nothing(tmp_path, monkeypatch):
     calls = {"n": 0}
-    real = C.render.MjRenderer.render
+    real = render.MjRenderer.render
 
     def failing(self, *a, **k):
         calls["n"] += 1
@@ -221,7 +224,7 @@ def test_failed_capture_leaves_nothing(tmp_path, monkeypatch):
             raise RuntimeError("renderer died")
         return real(self, *a, **k)
 
-    monkeypatch.setattr(C.render.MjRenderer, "render", failing)
+    monkeypatch.setattr(render.MjRenderer, "render", failing)
     with pytest.raises(RuntimeError, match="renderer died"):
         C.capture("pliers", "a", tmp_path / "set", **SMALL)
     assert list(tmp_path.iterdir()) == []
@@ -313,7 +316,7 @@ def test_fill_and_distance_are_inverse():
 def test_candidate_rings_prefer_the_desired_elevation_then_the_preferred_fill():
     K = np.array([[554.0, 0, 319.5], [0, 554.0, 239.5], [0, 0, 1]])
     cfg = views.ViewPlanConfig()
-    cands = list(views._candidates(cfg, 60.0, 0.2, K, 640, 480, 10.0, 80.0))
+    cands = list(views.candidates(cfg, 60.0, 0.2, K, 640, 480, 10.0, 80.0))
     el0, d0, f0 = cands[0]
     assert el0 == 60.0 and f0 == pytest.approx(cfg.fill)
     els = [c[0] for c in cands]
@@ -365,7 +368,7 @@ def test_held_object_stays_and_an_arm_hitting_it_is_seen_at_every_step():
     sc.hold(data, "b")
     assert data.eq_active[model.equality(HOLD_PREFIX + "truck_bed_hinge").id]
     kin = robot.load_arm_kinematics(model)
-    arm = C._Arm(model, data, kin)
+    arm = Arm(model, data, kin)
     q_home = data.qpos[arm.qidx].copy()
     arm.place(q_home)
     for _ in range(int(5.0 / model.opt.timestep)):
@@ -387,7 +390,7 @@ def test_min_jerk_profile_and_its_derivatives():
     assert s[0] == 0.0 and s[-1] == pytest.approx(1.0)
     assert ds[0] == ds[-1] == 0.0 and dds[0] == 0.0 and dds[-1] == pytest.approx(0.0, abs=1e-12)
     assert np.all(np.diff(s) >= 0.0)
-    assert ds.max() == pytest.approx(C.MIN_JERK_PEAK_SPEED)
+    assert ds.max() == pytest.approx(MIN_JERK_PEAK_SPEED)
     h = taus[1] - taus[0]
     np.testing.assert_allclose(np.gradient(s, h)[1:-1], ds[1:-1], atol=1e-5)
     np.testing.assert_allclose(np.gradient(ds, h)[1:-1], dds[1:-1], atol=1e-4)
@@ -409,7 +412,7 @@ def test_arm_follows_the_planned_line_with_the_rail_in_step():
     data = sc.make_data("b")
     sc.hold(data, "b")
     kin = robot.load_arm_kinematics(sc.model)
-    arm = C._Arm(sc.model, data, kin)
+    arm = Arm(sc.model, data, kin)
     assert arm.kp[0] > 0 and (arm.kv[0] / arm.kp[0]) > 0.25  # the slow rail servo
     q0 = np.array([2.33, -1.16, 0.33, -2.28, 1.11, -1.70, 2.65])
     q1 = np.array([-2.12, 1.66, 1.06, -3.90, 2.42, 1.43, 4.52])

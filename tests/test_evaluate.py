@@ -131,14 +131,14 @@ def _fake_capture(folder: Path, scene, n=4, *, empty_depth=False, configuration=
     """A capture folder with cameras on a ring and its ground truth: depth and link labels
     rendered in the configuration (or an empty depth: nothing occludes, no label)."""
     from sim import render
-    from sim.capture import _depth_png, _geom_labels, _labels_png
+    from sim.capture.files import depth_png, geom_labels, labels_png
     from sim.robot import look_at_pose
 
     K = np.array([[300.0, 0, 160], [0, 300, 120], [0, 0, 1]])
     for sub in ("depth", "labels"):
         (folder / "ground_truth" / sub).mkdir(parents=True)
     (folder / "images").mkdir()
-    renderer = render.MjRenderer(scene.model, geom_labels=_geom_labels(scene.model, scene, -1))
+    renderer = render.MjRenderer(scene.model, geom_labels=geom_labels(scene.model, scene, -1))
     data = scene.make_data(configuration)
     imgs, truth = [], []
     for i in range(n):
@@ -148,8 +148,8 @@ def _fake_capture(folder: Path, scene, n=4, *, empty_depth=False, configuration=
         out = renderer.render(data, K, T, 320, 240, depth=True, labels=True)
         depth = np.zeros((240, 320)) if empty_depth else out.depth
         labels = np.full((240, 320), render.LABEL_BACKGROUND) if empty_depth else out.labels
-        Image.fromarray(_depth_png(depth)).save(folder / "ground_truth" / "depth" / name)
-        Image.fromarray(_labels_png(labels)).save(folder / "ground_truth" / "labels" / name)
+        Image.fromarray(depth_png(depth)).save(folder / "ground_truth" / "depth" / name)
+        Image.fromarray(labels_png(labels)).save(folder / "ground_truth" / "labels" / name)
         Image.fromarray(np.full((240, 320, 3), 128, np.uint8)).save(folder / "images" / name)
         imgs.append({"file": name, "q": None, "T_world_camera": T.tolist()})
         truth.append({"file": name, "T_world_camera": T.tolist(),

@@ -13,6 +13,7 @@ from PIL import Image
 
 from sim import render as R
 from sim.camera import intrinsics_matrix
+from sim.render.context import _Renderer
 
 #: Rendered depth must put surfaces within this distance (m) of the true ones (issue 3).
 DEPTH_TOL = 1e-3
@@ -324,7 +325,7 @@ def test_culling_and_constant_light_loops_leave_every_pixel_as_pyrender_draws_it
         hidden.append(sum(not n.mesh.is_visible for n in renderer.geom_nodes.values()))
     assert max(hidden) > 0, "no view culled anything: the test does not test culling"
     monkeypatch.setattr(R.MjRenderer, "cull_offscreen", False)
-    monkeypatch.setattr(R._Renderer, "constant_light_loops", False)
+    monkeypatch.setattr(_Renderer, "constant_light_loops", False)
     for T, f in zip(poses, fast, strict=True):
         plain = renderer.render(data, K, T, W, H, depth=True, labels=True)
         np.testing.assert_array_equal(f.color, plain.color)

@@ -208,9 +208,9 @@ def read_mjcf(path: str | Path, body: str | None = None) -> SourceObject:
 def _own_texture(model, g: int, m: int):
     """A mesh geom's own texture: corner UVs (f, 3, 2) (OBJ convention) and its material's RGB
     image (h, w, 3) uint8, or None, None."""
-    from sim.render import _material_texture, _texture_image
+    from sim.render import material_texture, texture_image  # pyrender, OpenGL: when needed
 
-    tex = _material_texture(model, int(model.geom_matid[g]))
+    tex = material_texture(model, int(model.geom_matid[g]))
     if tex < 0 or int(model.mesh_texcoordnum[m]) == 0 or int(model.tex_type[tex]) != int(
             mujoco.mjtTexture.mjTEXTURE_2D):
         return None, None
@@ -218,7 +218,7 @@ def _own_texture(model, g: int, m: int):
                   int(model.mesh_facenum[m]))
     uv = np.asarray(model.mesh_texcoord[ta + model.mesh_facetexcoord[fa:fa + fn]], float)
     uv[..., 1] = 1.0 - uv[..., 1]  # MuJoCo flips the OBJ v on loading; back to OBJ's
-    return uv, _texture_image(model, tex)
+    return uv, texture_image(model, tex)
 
 
 def _alpha(model, g: int) -> float:

@@ -1,0 +1,118 @@
+"""The fresh view: one more image after a capture, from an arm pose that neither image set holds,
+for registration by PnP and hand-eye (:mod:`artrecon.register`)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from sim import render, robot, views
+from sim.capture.arm import Arm
+from sim.capture.files import as_list, check_out_dir, png_bytes, work_dir
+from sim.capture.rig import CaptureError, make_rig, true_camera_pose
+
+#: The fresh view (:func:`capture_fresh_view`) lies between the first two capture rings (20 and
+#: 40 degrees by default), so no image of a set was taken from there ...
+FRESH_ELEVATION_DEG = 30.0
+#: ... and half a capture step (10 degrees at 36 views per ring) off the arm's current azimuth;
+#: further offsets are tried when that one is out of reach.
+FRESH_AZIMUTH_OFFSETS_DEG = (5.0, 15.0, -5.0, -15.0, 25.0, -25.0, 35.0, -35.0)
+
+
+@dataclass
+class FreshView:
+    """What :func:`capture_fresh_view` wrote."""
+
+    image: Path
+    """the image file"""
+    pose_file: Path
+    """``{"q", "T_world_flange", "T_world_camera"}``: what the robot knows (FK of its joints)"""
+    q: np.ndarray
+    """the arm's joint angles at the view (rail first)"""
+    T_world_flange: np.ndarray
+    """flange pose from FK (m)"""
+    T_world_camera_true: np.ndarray
+    """the camera's true pose (scoring only; ``ground_truth.json`` beside the image)"""
+
+
+def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.6,
+                       seed: int = 0) -> FreshView:
+    """One more image after the capture, from an arm pose that neither image set holds.
+
+    The arm starts at ``q_start`` (where the capture left it), plans a view at
+    :data:`FRESH_ELEVATION_DEG` half a capture step off its current azimuth (other offsets when
+    that one is out of reach), moves there in physics along a checked line and photographs the
+    object. Writes ``out_dir/fresh.png``, ``out_dir/pose.json`` (joint angles, flange and camera
+    pose from forward kinematics: what the robot knows) and ``out_dir/ground_truth.json`` (the
+    true camera pose, scoring only), whole or not at all.
+
+    Raises
+    ------
+    CaptureError
+        No offset gives a reachable, collision-free view with a clear path.
+    """
+    out_dir = check_out_dir(Path(out_dir), overwrite=False)
+    rig = make_rig(scene, config)
+    sc, model, data, kin = rig.scene, rig.model, rig.data, rig.kin
+    K, width, height = rig.K, rig.width, rig.height
+    q_start = np.asarray(q_start, dtype=float)
+    data.qpos[robot.qpos_indices(model, kin)] = q_start
+    mujoco.mj_forward(model, data)
+    centre, radius = views.object_bounding_sphere(model, data)
+    distance = views.ring_distance(radius, K, width, height, fill)
+    eye = kin.camera_pose(q_start)[:3, 3] - centre
+    az0 = float(np.arctan2(eye[1], eye[0]))
+    el = np.deg2rad(FRESH_ELEVATION_DEG)
+    reasons = []
+    chosen = None
+    for k, off in enumerate(FRESH_AZIMUTH_OFFSETS_DEG):
+        az = az0 + np.deg2rad(off)
+        pos = centre + distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az),
+                                            np.sin(el)])
+        view = views.View(k, 0, az, el, distance, robot.look_at_pose(pos, centre))
+        views.solve_views(model, data, kin, [view], seed=seed, q_start=q_start)
+        if view.reachable:
+            views.check_paths(model, data, kin, [view], q_start=q_start)
+        if view.reachable:
+            chosen = view
+            break
+        reasons.append(f"{off:+.0f} deg: {view.reason}")
+    if chosen is None:
+        raise CaptureError(f"no fresh view of {sc.name!r} is reachable near the arm's pose: "
+                           + "; ".join(reasons[:3]))
+    arm = Arm(model, data, kin)
+    arm.place(q_start)
+    hits = arm.move(chosen.q)
+    if hits:
+        raise CaptureError(f"the arm touched {', '.join(hits)} on its way to the fresh view of "
+                           f"{sc.name!r}")
+    q = arm.measured_q()
+    T_true = true_camera_pose(data, rig.cam_id)
+    renderer = render.MjRenderer(model)
+    color = renderer.render(data, K, T_true, width, height).color
+    T_flange = kin.frame_pose(q, "flange")
+    tmp = work_dir(out_dir)
+    try:
+        (tmp / "fresh.png").write_bytes(png_bytes(color, "colour"))
+        pose = {"scene": sc.name, "config": config, "q": [float(x) for x in q],
+                "joint_names": list(kin.joint_names), "K": as_list(K),
+                "T_world_flange": as_list(T_flange),
+                "T_world_camera": as_list(kin.camera_pose(q)),
+                "view": {"azimuth_deg": float(np.rad2deg(chosen.azimuth)),
+                         "elevation_deg": FRESH_ELEVATION_DEG, "distance_m": distance,
+                         "roll_deg": chosen.roll_deg}}
+        (tmp / "pose.json").write_text(json.dumps(pose, indent=2) + "\n")
+        (tmp / "ground_truth.json").write_text(json.dumps(
+            {"T_world_camera": as_list(T_true)}, indent=2) + "\n")
+        os.chmod(tmp, 0o755)
+        os.replace(tmp, out_dir)  # never over a folder made since the check: not publish()
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return FreshView(out_dir / "fresh.png", out_dir / "pose.json", q, T_flange, T_true)

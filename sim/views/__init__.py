@@ -1,0 +1,67 @@
+"""Viewpoint planning for eye-in-hand capture: rings of views around the object, reached by the arm.
+
+Rooms: :mod:`~sim.views.planner` (:func:`plan_capture`: each ring's distance and elevation
+chosen so that the arm reaches all of it), :mod:`~sim.views.rings` (the object's bounding sphere,
+ring distances and views, the rail's order), :mod:`~sim.views.solve` (IK and the moves between
+views), :mod:`~sim.views.clearance` (what the arm comes close to), :mod:`~sim.views.records`
+(:class:`ViewPlanConfig`, :class:`View`, :class:`Ring`, :class:`ViewPlan`) and
+:mod:`~sim.views.plan_file` (a plan as JSON).
+"""
+
+from sim.views.clearance import (
+    CLEARANCE_M,
+    arm_collisions,
+    arm_link_bodies,
+    clearance_violations,
+    robot_bodies,
+)
+from sim.views.plan_file import PLAN_FORMAT, plan_from_json, plan_to_json
+from sim.views.planner import (
+    ELEVATION_STEP_DEG,
+    FILL_STEP,
+    PROBE_IK_RESTARTS,
+    PROBE_VIEWS,
+    candidates,
+    plan_capture,
+)
+from sim.views.records import (
+    MAX_NEIGHBOUR_ANGLE_DEG,
+    MIN_VIEWS,
+    Ring,
+    View,
+    ViewPlan,
+    ViewPlanConfig,
+    views_problem,
+)
+from sim.views.rings import (
+    MIN_RING_DISTANCE,
+    fill_at_distance,
+    object_bodies,
+    object_bounding_sphere,
+    order_for_rail,
+    plan_views,
+    ring_distance,
+    ring_phases,
+    ring_size,
+    ring_sizes,
+    ring_views,
+)
+from sim.views.solve import (
+    IK_RESTARTS,
+    PATH_CHECK_STEP,
+    ROLL_CANDIDATES_DEG,
+    check_paths,
+    rolled,
+    solve_views,
+)
+
+__all__ = [
+    "CLEARANCE_M", "ELEVATION_STEP_DEG", "FILL_STEP", "IK_RESTARTS", "MAX_NEIGHBOUR_ANGLE_DEG",
+    "MIN_RING_DISTANCE", "MIN_VIEWS", "PATH_CHECK_STEP", "PLAN_FORMAT", "PROBE_IK_RESTARTS",
+    "PROBE_VIEWS", "ROLL_CANDIDATES_DEG", "Ring", "View", "ViewPlan", "ViewPlanConfig",
+    "arm_collisions", "arm_link_bodies", "candidates", "check_paths", "clearance_violations",
+    "fill_at_distance", "object_bodies", "object_bounding_sphere", "order_for_rail",
+    "plan_capture", "plan_from_json", "plan_to_json", "plan_views", "ring_distance",
+    "ring_phases", "ring_size", "ring_sizes", "ring_views", "robot_bodies", "rolled",
+    "solve_views", "views_problem",
+]

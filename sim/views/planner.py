@@ -1,0 +1,197 @@
+"""Viewpoint planning for eye-in-hand capture: rings of views around the object, reached by the arm.
+
+The object's bounding sphere (from its visible geoms in the compiled model) fixes the ring centre
+and, with the wrist camera's field of view, the band of camera distances at which the object fills
+a good share of the image (:attr:`ViewPlanConfig.fill_range`). Every view looks at the sphere's
+centre; each is solved with the arm's inverse kinematics (rail and arm together, joint limits
+respected, :func:`sim.robot.solve_view_ik`) and checked for collisions of the arm links in MuJoCo
+(contacts after ``mj_forward``: with the table, the object, the floor and the arm itself).
+
+:func:`plan_capture` chooses each ring before committing to it: the distance in the band nearest
+the preferred fill and, only if no distance gives a ring the arm reaches everywhere without a
+collision, the elevation nearest the desired one (within
+:attr:`ViewPlanConfig.max_elevation_shift_deg`). A candidate ring is first probed at a few
+azimuths, then solved in full. Views that the arm cannot reach on the best ring found are reported
+with the reason, never silently dropped.
+"""
+
+
+from __future__ import annotations
+
+import logging
+from dataclasses import replace
+
+import mujoco
+import numpy as np
+
+from sim import robot
+from sim.views.records import Ring, View, ViewPlan, ViewPlanConfig
+from sim.views.rings import (
+    fill_at_distance,
+    object_bounding_sphere,
+    order_for_rail,
+    ring_distance,
+    ring_phases,
+    ring_size,
+    ring_views,
+)
+from sim.views.solve import check_paths, solve_views
+
+log = logging.getLogger(__name__)
+
+#: Random IK restarts while probing a candidate ring. Most rings the arm reaches are reached from
+#: the neighbouring view's solution at once, so the probe spends little on hopeless rings; the
+#: price is that a ring at the very edge of the workspace may fail its probe and give way to the
+#: next candidate (another distance in the band), never that an unreachable view is planned.
+PROBE_IK_RESTARTS = 2
+#: Views of a candidate ring probed (evenly spread in azimuth) before it is solved in full.
+PROBE_VIEWS = 6
+
+#: Step (share of the image) between the candidate fills of a ring, and (degrees) between its
+#: candidate elevations: 0.05 of fill is 2-4 cm of distance for the bundled objects, 2.5 degrees
+#: a quarter of the 10 degree view spacing.
+FILL_STEP = 0.05
+ELEVATION_STEP_DEG = 2.5
+
+
+
+def candidates(config: ViewPlanConfig, desired_deg: float, radius: float, K, width: int,
+                height: int, lowest_deg: float, highest_deg: float):
+    """(elevation in degrees, distance, fill) of the candidate rings for one desired elevation:
+    the desired elevation first with every distance in the fill band (nearest the preferred fill
+    first, the closer of two equally near), then elevations further and further off (towards
+    45 degrees first), each with every distance."""
+    lo, hi = config.fill_range
+    fills = np.round(np.arange(lo, hi + 1e-9, FILL_STEP), 6).tolist() + [config.fill]
+    fills = sorted(set(fills), key=lambda f: (abs(f - config.fill), -f))
+    distances = []
+    for f in fills:
+        d = ring_distance(radius, K, width, height, f)
+        if all(abs(d - e) > 1e-3 for e in distances):  # the minimum distance clamps small objects
+            distances.append(d)
+    shifts = [0.0]
+    k = 1
+    while k * ELEVATION_STEP_DEG <= config.max_elevation_shift_deg + 1e-9:
+        step = k * ELEVATION_STEP_DEG
+        shifts += [-step, step] if desired_deg > 45.0 else [step, -step]
+        k += 1
+    for shift in shifts:
+        el = desired_deg + shift
+        if not lowest_deg <= el <= highest_deg:
+            continue
+        for d in distances:
+            yield el, d, fill_at_distance(radius, K, width, height, d)
+
+
+def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinematics,
+                 K: np.ndarray, width: int, height: int, config: ViewPlanConfig, *,
+                 progress=None) -> ViewPlan:
+    """Choose every ring so that the arm reaches all its views without a collision, and solve them.
+
+    For each ring (full rings, then top rings) the candidates of :func:`candidates` are tried in
+    order: a candidate is probed at :data:`PROBE_VIEWS` evenly spread views (few IK restarts,
+    stopping at the first failure), then solved view by view up to its first unreachable view
+    (:func:`solve_views`) and the moves into its views checked (:func:`check_paths`); the first
+    whose views are all reachable, and whose moves touch nothing, is taken. If none is, the
+    candidates that passed their probe are solved in full (second chances included) and the
+    ring with the most reachable views is taken; its other views are reported unreachable.
+
+    Parameters
+    ----------
+    model, data
+        The scene in the configuration to photograph (``data`` after ``mj_forward``).
+    kin : robot.ArmKinematics
+    K : (3, 3) float
+        Wrist camera intrinsics; ``width``, ``height`` its image size (px).
+    config : ViewPlanConfig
+    progress : tqdm-like, optional
+        ``update(n)`` with the views of each ring once it is chosen.
+
+    Returns
+    -------
+    ViewPlan
+        Rings and views in capture order (ring by ring, each swept in one rail direction).
+    """
+    centre, radius = object_bounding_sphere(model, data)
+    lowest = min((*config.elevations_deg, *config.top_elevations_deg))
+    highest = max((*config.elevations_deg, *config.top_elevations_deg))
+    lowest = max(-80.0, lowest - config.max_elevation_shift_deg)
+    highest = min(85.0, highest + config.max_elevation_shift_deg)
+    n_full = len(config.elevations_deg)
+    plan = ViewPlan(centre=centre, radius=radius)
+    q_last = None
+    for i, (desired, az0) in enumerate(zip((*config.elevations_deg, *config.top_elevations_deg),
+                                           ring_phases(config), strict=True)):
+        top = i >= n_full
+        best: tuple[int, Ring, list[View]] | None = None
+        screened: list[tuple[Ring, list[View]]] = []  # passed the probe, not whole
+        tried = 0
+        for el_deg, d, fill in candidates(config, desired, radius, K, width, height, lowest,
+                                           highest):
+            tried += 1
+            el = float(np.deg2rad(el_deg))
+            ring = Ring(index=i, desired_elevation=float(np.deg2rad(desired)), elevation=el,
+                        distance=float(d), fill=float(fill),
+                        n_views=ring_size(el, config.views_per_ring, top), azimuth0=az0,
+                        top=top, candidates_tried=tried)
+            members = order_for_rail(ring_views(centre, ring), kin)
+            first = len(plan.views)
+            for k, v in enumerate(members):
+                v.index = first + k
+            step = max(1, len(members) // PROBE_VIEWS)
+            probe = members[::step]
+            solve_views(model, data, kin, probe, seed=config.seed, q_start=q_last,
+                        restarts=PROBE_IK_RESTARTS, stop_at_first_failure=True)
+            if not all(v.reachable for v in probe):
+                log.debug("ring %d at %.1f deg, %.3f m: probe failed (%s)", i, el_deg, d,
+                          next(v.reason for v in probe if not v.reachable))
+                if best is None:
+                    best = (-1, ring, members)
+                continue
+            # screened in full, stopping at its first unreachable view: a ring is taken only
+            # whole, and a failing view costs every IK restart, so solving the rest of a ring
+            # that already failed (as this did until 2026-11) spent most of a large object's
+            # plan (drawer: 42 candidates for its lowest ring)
+            solve_views(model, data, kin, members, seed=config.seed, q_start=q_last,
+                        stop_at_first_failure=True)
+            if all(v.reachable for v in members):
+                check_paths(model, data, kin, members, q_last)
+                if all(v.reachable for v in members):
+                    best = (len(members), ring, members)
+                    break
+            log.debug("ring %d at %.1f deg, %.3f m: not every view reachable", i, el_deg, d)
+            screened.append((ring, members))
+        else:
+            # no candidate is whole: the one with the most reachable views, each solved in full
+            # (with its second chances from the other side)
+            for ring_c, members_c in screened:
+                solve_views(model, data, kin, members_c, seed=config.seed, q_start=q_last)
+                check_paths(model, data, kin, members_c, q_last)
+                n_ok = sum(v.reachable for v in members_c)
+                if best is None or n_ok > best[0]:
+                    best = (n_ok, ring_c, members_c)
+                if n_ok == len(members_c):
+                    break
+        n_ok, ring, members = best
+        if n_ok < 0:
+            # no candidate passed its probe: solve the preferred one in full, to report why
+            solve_views(model, data, kin, members, seed=config.seed, q_start=q_last)
+            check_paths(model, data, kin, members, q_last)
+        if any(not v.reachable for v in members):
+            log.warning("ring %d (desired %.0f deg): no ring within %.0f deg and fills %s is "
+                        "reachable everywhere; %d of %d views unreachable at %.1f deg, %.3f m",
+                        i, desired, config.max_elevation_shift_deg, config.fill_range,
+                        sum(not v.reachable for v in members), len(members),
+                        np.rad2deg(ring.elevation), ring.distance)
+        ring = replace(ring, candidates_tried=tried)
+        log.info("ring %d: %d views at %.1f deg (desired %.0f), %.3f m (fill %.2f), %d "
+                 "candidates tried", i, ring.n_views, np.rad2deg(ring.elevation), desired,
+                 ring.distance, ring.fill, tried)
+        plan.rings.append(ring)
+        plan.views.extend(members)
+        reached = [v for v in members if v.reachable]
+        if reached:
+            q_last = reached[-1].q
+        if progress is not None:
+            progress.update(len(members))
+    return plan
