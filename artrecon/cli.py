@@ -41,7 +41,7 @@ def _parser() -> argparse.ArgumentParser:
                    "poses fixed instead of searching for them (faster, metric)")
     r.add_argument("--set", dest="settings", action="append", default=[],
                    metavar="STAGE.FIELD=VALUE", help="change one reconstruction setting (a "
-                   "field of artrecon.reconstruct.ReconstructConfig, within its range in "
+                   "field of artrecon.settings.ReconstructConfig, within its range in "
                    "artrecon.settings.RANGES; repeatable), e.g. dense.downsample=1: "
                    "full-resolution stereo for objects whose parts are only a few millimetres "
                    "thick (about 5x the dense stage's time), or sfm.matching=exhaustive")
@@ -97,7 +97,8 @@ def parse_settings(items: list[str]) -> dict[str, float | str]:
 
 
 def _run_reconstruct(args: argparse.Namespace) -> int:
-    from artrecon.reconstruct import ReconstructConfig, reconstruct, with_settings
+    from artrecon.reconstruct import reconstruct
+    from artrecon.settings import ReconstructConfig, with_settings
 
     try:
         config = with_settings(ReconstructConfig(), parse_settings(args.settings))
