@@ -28,7 +28,8 @@ from scipy.spatial import cKDTree
 
 from artrecon import workers
 from artrecon.assign import assign_dense_to_links
-from artrecon.confidence import assess_joints, check_motion, explain_segmentation_failure
+from artrecon.confidence import assess_joints
+from artrecon.diagnosis import check_motion, explain_segmentation_failure
 from artrecon.errors import DegenerateError, ReconstructionError
 from artrecon.features import PointDescriptors
 from artrecon.freespace import seen_through_table, support_plane
