@@ -20,6 +20,10 @@ import shlex
 import sys
 
 from artrecon.errors import ArtreconError, InputError, NoMotionError
+from artrecon.export import add_export_parser
+from artrecon.reconstruct import STAGES, reconstruct
+from artrecon.register.cli import add_register_parser
+from artrecon.settings import ReconstructConfig, with_settings
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -61,9 +65,6 @@ def _parser() -> argparse.ArgumentParser:
                    "each configuration's SfM, dense points and object region: OUT/a, OUT/b)")
     r.add_argument("--quiet", action="store_true", help="no progress bars, warnings only")
     r.set_defaults(handler=_run_reconstruct)
-    from artrecon.export import add_export_parser
-    from artrecon.register.cli import add_register_parser
-
     add_export_parser(sub)
     add_register_parser(sub)
     return p
@@ -97,9 +98,6 @@ def parse_settings(items: list[str]) -> dict[str, float | str]:
 
 
 def _run_reconstruct(args: argparse.Namespace) -> int:
-    from artrecon.reconstruct import reconstruct
-    from artrecon.settings import ReconstructConfig, with_settings
-
     try:
         config = with_settings(ReconstructConfig(), parse_settings(args.settings))
         model = reconstruct(args.dir_a, args.dir_b, intrinsics=args.intrinsics,
@@ -146,8 +144,6 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
 def _continue_command(args: argparse.Namespace) -> str:
     """The command that runs the rest of a run stopped with ``--to``: its inputs and options,
     ``--from`` the next stage."""
-    from artrecon.reconstruct import STAGES
-
     names = list(STAGES)
     argv = ["artrecon", "reconstruct", args.dir_a, args.dir_b, "--out", args.out]
     if args.intrinsics is not None:
