@@ -20,6 +20,10 @@ import shlex
 import sys
 
 from artrecon.errors import ArtreconError, InputError, NoMotionError
+from artrecon.export import add_export_parser
+from artrecon.reconstruct import STAGES, reconstruct
+from artrecon.register.cli import add_register_parser
+from artrecon.settings import ReconstructConfig, with_settings
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -41,7 +45,7 @@ def _parser() -> argparse.ArgumentParser:
                    "poses fixed instead of searching for them (faster, metric)")
     r.add_argument("--set", dest="settings", action="append", default=[],
                    metavar="STAGE.FIELD=VALUE", help="change one reconstruction setting (a "
-                   "field of artrecon.reconstruct.ReconstructConfig, within its range in "
+                   "field of artrecon.settings.ReconstructConfig, within its range in "
                    "artrecon.settings.RANGES; repeatable), e.g. dense.downsample=1: "
                    "full-resolution stereo for objects whose parts are only a few millimetres "
                    "thick (about 5x the dense stage's time), or sfm.matching=exhaustive")
@@ -61,9 +65,6 @@ def _parser() -> argparse.ArgumentParser:
                    "each configuration's SfM, dense points and object region: OUT/a, OUT/b)")
     r.add_argument("--quiet", action="store_true", help="no progress bars, warnings only")
     r.set_defaults(handler=_run_reconstruct)
-    from artrecon.export import add_export_parser
-    from artrecon.register.cli import add_register_parser
-
     add_export_parser(sub)
     add_register_parser(sub)
     return p
@@ -97,8 +98,6 @@ def parse_settings(items: list[str]) -> dict[str, float | str]:
 
 
 def _run_reconstruct(args: argparse.Namespace) -> int:
-    from artrecon.reconstruct import ReconstructConfig, reconstruct, with_settings
-
     try:
         config = with_settings(ReconstructConfig(), parse_settings(args.settings))
         model = reconstruct(args.dir_a, args.dir_b, intrinsics=args.intrinsics,
@@ -145,8 +144,6 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
 def _continue_command(args: argparse.Namespace) -> str:
     """The command that runs the rest of a run stopped with ``--to``: its inputs and options,
     ``--from`` the next stage."""
-    from artrecon.reconstruct import STAGES
-
     names = list(STAGES)
     argv = ["artrecon", "reconstruct", args.dir_a, args.dir_b, "--out", args.out]
     if args.intrinsics is not None:

@@ -27,9 +27,9 @@ systematic errors common to all matches (a distorted SfM model, wrong matches th
 The motion gate (``MIN_MOTION_SNR``) covers part of that: a motion no larger than the residuals
 could itself be such an error.
 
-Registration: :func:`registration_agreement` compares the two registrations of
-:mod:`artrecon.register` (camera centres vs PnP + hand-eye) at each joint's axis and records it in
-the model (``metadata["confidence"]["registration"]`` and each joint's record).
+Elsewhere: the plain explanations of a run whose matches give no second link (nothing moved, one
+rigid body, different objects) are :mod:`artrecon.diagnosis`; the agreement of two registrations
+at each joint's axis is :mod:`artrecon.register.agreement`.
 """
 
 from __future__ import annotations
@@ -38,10 +38,12 @@ import logging
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from artrecon import tolerances as tol
 from artrecon.errors import DegenerateError, WeakEvidenceError
 from artrecon.geometry import skew
+from artrecon.joints import JointConfig, joint_from_motion, relative_motion
 from artrecon.procrustes import Similarity, rotation_angle
 
 log = logging.getLogger(__name__)
@@ -49,10 +51,7 @@ log = logging.getLogger(__name__)
 __all__ = [
     "ConfidenceConfig",
     "assess_joints",
-    "explain_segmentation_failure",
     "joint_confidence",
-    "registration_agreement",
-    "check_registration_agreement",
     "rescale_confidence",
     "MIN_LINK_INLIERS",
     "MIN_MOTION_SNR",
@@ -108,17 +107,6 @@ SCORE_AXIS_DEG = 2.0
 #: ... and (revolute) whose axis line passes within this fraction of the child's extent of the
 #: estimate's axis point (the evaluation's 5 mm on objects of 20-30 cm).
 SCORE_POINT_RELATIVE = 0.02
-#: When segmentation leaves fewer than two links, and fewer than this share of the object's matches
-#: agree on any one rigid motion, the matches are mostly chance pairings: the two image sets show
-#: different objects (or the matching failed), not one object that moved rigidly. Real captures
-#: put 83-91% of their matches in links (bundled scenes); a rendered other object in the same room
-#: gave 11% and 45% (the static floor near the object matches). Either way the run is refused;
-#: this only picks the explanation the message leads with (it keeps the segmentation's own).
-MIN_CONSISTENT_SHARE = 0.7
-#: Two registrations that put the model's points further apart than this (mm, RMS), or rotate it
-#: by more than this (deg), disagree: one of them is wrong by more than a grasp tolerates.
-REGISTRATION_MAX_MM = 10.0
-REGISTRATION_MAX_DEG = 2.0
 
 #: Keys of a confidence record holding lengths in the model's units (scaled by registration).
 _LENGTH_KEYS = {("links", "rms"), ("links", "extent"), ("motion", "displacement"),
@@ -168,8 +156,6 @@ def _batch_gls_step(pa: np.ndarray, pb: np.ndarray, transform: Similarity, mats:
     held, the scale too) of B resamples ``draw`` (B, m) of the n pairs: one Gauss-Newton step
     from ``transform``, the fit of all of them (a linearised bootstrap; the fit is linear in the
     motion to well under a hundredth of a degree at the rotations resampling gives)."""
-    from scipy.spatial.transform import Rotation
-
     rot, t, s = transform.rotation, transform.translation, transform.scale
     x = s * pa @ rot.T
     r = x + t - pb
@@ -230,8 +216,6 @@ def joint_confidence(joint, points_a, points_b, segmentation, joint_config=None,
     dict
         JSON-ready; lengths in model units.
     """
-    from artrecon.joints import JointConfig, joint_from_motion, relative_motion
-
     joint_config = joint_config or JointConfig()
     pa_all = np.asarray(points_a, dtype=float)
     pb_all = np.asarray(points_b, dtype=float)
@@ -403,7 +387,7 @@ def assess_joints(points_a, points_b, segmentation, joints, joint_config=None,
     anchors : dict, optional
         ``{link: (points_a, points_b[, weights])}``: matches outside the segmentation that the
         link's transform was also fitted to (the background, for the base:
-        :func:`artrecon.reconstruct.anchor_to_background`); the bootstrap resamples them with
+        :func:`artrecon.link_motions.anchor_to_background`); the bootstrap resamples them with
         the link's own.
 
     Returns
@@ -459,227 +443,3 @@ def rescale_confidence(record: dict, scale: float, unit: str = "m") -> dict:
                 out[name][key] = out[name][key] * scale
     out["length_unit"] = unit
     return out
-
-
-def explain_segmentation_failure(exc: Exception, points_a, points_b, seg_config,
-                                 seed: int = 0) -> Exception:
-    """The error to raise when segmentation left fewer than two links (segment_links, or after
-    merging links that move alike, build_kinematic_tree).
-
-    ``exc`` (SingleBodyError, DegenerateError) says the object moved as one body or the matches
-    are bad; when fewer than ``MIN_CONSISTENT_SHARE`` of the matches move together under any rigid
-    motion, the likelier cause is two image sets of different objects: a ReconstructionError
-    saying so, with the figure. Otherwise ``exc`` itself.
-    """
-    from dataclasses import replace
-
-    from artrecon.errors import NoMotionError, ReconstructionError
-    from artrecon.segment import segment_links
-
-    if isinstance(exc, NoMotionError):
-        return exc
-    n = len(points_a)
-    try:
-        seg = segment_links(points_a, points_b, replace(seg_config, min_links=1), seed=seed)
-        share = float(seg.sizes.max() / n) if seg.n_links else 0.0
-    except DegenerateError:
-        share = 0.0
-    if share >= MIN_CONSISTENT_SHARE:
-        return exc
-    return ReconstructionError(
-        f"no consistent link between the two image sets: at most {100 * share:.0f}% of the {n} "
-        f"matches on the object move together under one rigid motion (a real object: most of "
-        f"them; need {100 * MIN_CONSISTENT_SHARE:.0f}%), so the matches are chance pairings. Are "
-        "both image sets of the same object, photographed from similar directions? If they "
-        "are, the two sets' models disagree beyond the matches' noise: take more views per ring "
-        "(the drawer failed so at 12 per ring, and with 2.5 px of blur) or sharper images "
-        f"(segmentation: {exc})")
-
-
-#: Fewest background (room) matches that show the room's motion between A and B for
-#: :func:`check_motion` (as many as artrecon.reconstruct needs to find the base).
-MIN_ROOM_MATCHES = 20
-#: :func:`check_motion` peels off at most this many groups of left-over matches that move like
-#: the object's main motion (each refit is one single-link segmentation).
-MAX_ALIKE_GROUPS = 4
-#: Two fits move a group of matches alike when they put it less than this many times the larger
-#: of their inlier distances apart (or 0.1% of the object's size): within the noise of the fits.
-ALIKE_THRESHOLDS = 3.0
-
-
-def check_motion(points_a, points_b, background_a, background_b, seg_config,
-                 seed: int = 0) -> None:
-    """Say first and plainly when nothing moved between A and B, or when the whole object moved
-    as one rigid body: before segmentation, whose failure would name other causes.
-
-    The object's matches are fitted by one similarity (the largest link segmentation would find
-    alone). When the matches it leaves hold no rigid group of a link's size (``min_link_size``;
-    wrong matches move every which way), no second link can be found: the object moved as one
-    body, if at all. The room does not move; its matches
-    (``background_a``, ``background_b``) give the similarity of A's frame to B's. When the two
-    similarities move the object's points alike (within the segmentation's inlier distance and
-    under ``tolerances.REVOLUTE_MIN_ANGLE``) nothing moved; otherwise the object moved against the
-    room as one body. Without enough room matches nothing is concluded here.
-
-    Parameters
-    ----------
-    points_a, points_b : (n, 3) float
-        The object's matches.
-    background_a, background_b : (m, 3) float
-        The room's matches.
-    seg_config : artrecon.segment.SegmentationConfig
-    seed : int
-
-    Raises
-    ------
-    NoMotionError
-        Nothing moved (the same configuration photographed twice).
-    SingleBodyError
-        The object moved as one rigid body against the room.
-    """
-    from dataclasses import replace
-
-    from artrecon.errors import NoMotionError, SingleBodyError
-    from artrecon.segment import min_link_size, segment_links
-
-    n = len(points_a)
-    if n < 3 or len(background_a) < MIN_ROOM_MATCHES:
-        return
-    one = replace(seg_config, min_links=1, max_links=1)
-    try:
-        obj = segment_links(points_a, points_b, one, seed=seed)
-        room = segment_links(background_a, background_b, one, seed=seed)
-    except DegenerateError:
-        return
-    if obj.n_links == 0 or room.n_links == 0:
-        return
-    least = min_link_size(seg_config, n)
-    T_obj, T_room = obj.transforms[0], room.transforms[0]
-    # The matches left over: a rigid group of a link's size that moves otherwise is a part that
-    # moved (segmentation decides); groups that move like the first are the same body (its
-    # matches a little beyond the first fit's tight inlier distance: noise-free renders left
-    # 452 of 2089 so, 436 of them moving alike); what is left then is wrong matches.
-    rest = np.flatnonzero(np.asarray(obj.labels) < 0)
-    for _ in range(MAX_ALIKE_GROUPS):
-        if len(rest) < least:
-            break
-        try:
-            group = segment_links(points_a[rest], points_b[rest], one, seed=seed)
-        except DegenerateError:
-            break
-        if group.n_links == 0 or group.sizes[0] < least:
-            break
-        members = rest[np.asarray(group.labels) == 0]
-        apart = float(np.median(np.linalg.norm(T_obj.apply(points_a[members])
-                                               - group.transforms[0].apply(points_a[members]),
-                                               axis=1)))
-        alike = max(ALIKE_THRESHOLDS * max(obj.thresholds[0], group.thresholds[0]),
-                    tol.NO_MOTION_DISPLACEMENT * obj.scene_size_b)
-        if apart > alike or rotation_angle(T_obj.rotation.T @ group.transforms[0].rotation) \
-                >= tol.REVOLUTE_MIN_ANGLE:
-            return  # a part moved otherwise: segmentation decides
-        rest = np.setdiff1d(rest, members)
-    left = len(rest)
-    gap = float(np.median(np.linalg.norm(T_room.apply(points_a) - T_obj.apply(points_a),
-                                         axis=1)))
-    turn = rotation_angle(T_obj.rotation.T @ T_room.rotation)
-    reach = seg_config.inlier_threshold * obj.scene_size_b
-    fits = (f"{n - left} of the {n} matches on the object fit one rigid motion and the other "
-            f"{left} no common one (a moving part needs at least {least} matches that move "
-            "together otherwise)")
-    if gap <= reach and turn < tol.REVOLUTE_MIN_ANGLE:
-        raise NoMotionError(
-            f"nothing moved between A and B: {fits}, and it is the motion of the room "
-            f"({room.sizes[0]} background matches; the two differ by {np.degrees(turn):.2f} deg "
-            f"and {100 * gap / obj.scene_size_b:.2f}% of the object's size at the object). The "
-            "two image sets show the object in the same configuration. Photograph configuration "
-            "B after moving a joint of the object (open the lid, pull the drawer), and pass "
-            "that folder as B. (If a part did move, it has too few matches to show it: "
-            "photograph it from more views.)")
-    raise SingleBodyError(
-        f"the whole object moved as one rigid body between A and B, and no joint moved: {fits}, "
-        f"and that motion differs from the room's by {np.degrees(turn):.1f} deg and "
-        f"{100 * gap / obj.scene_size_b:.1f}% of the object's size. Move a joint of the object "
-        "(not the whole object) between the two image sets; if a part did move, photograph it "
-        "from more views so that it gets matches of its own")
-
-
-# --- registration ---------------------------------------------------------------------------------
-
-
-def registration_agreement(model, T1: Similarity, T2: Similarity, registered=None) -> dict:
-    """How far apart two registrations (e.g. camera centres vs PnP + hand-eye) put the model and
-    each joint's axis; recorded in ``registered`` (or ``model``) when given.
-
-    Parameters
-    ----------
-    model : ArticulatedModel
-        In its own (SfM) frame: the frame both similarities map from.
-    T1, T2 : Similarity
-        Two estimates of ``T_robot_model`` (metres).
-    registered : ArticulatedModel, optional
-        The registered copy (apply_registration) to record the agreement in; by default
-        ``model`` itself. Joint names must match.
-
-    Returns
-    -------
-    dict
-        ``translation_mm`` (RMS over the model's points), ``max_translation_mm``,
-        ``rotation_deg``, ``scale_ratio``, ``agree`` and per joint the axis-point distance (mm)
-        and the axis direction angle (deg) between the two registrations.
-    """
-    pts = [lk.points for lk in model.links if len(lk.points)]
-    pts = np.concatenate(pts) if pts else np.zeros((1, 3))
-    d = np.linalg.norm(T1.apply(pts) - T2.apply(pts), axis=1) * 1e3
-    rot = float(np.degrees(rotation_angle(T1.rotation.T @ T2.rotation)))
-    rms = float(np.sqrt(np.mean(d ** 2)))
-    out = {"translation_mm": rms, "max_translation_mm": float(d.max()), "rotation_deg": rot,
-           "scale_ratio": float(T1.scale / T2.scale),
-           "agree": bool(rms <= REGISTRATION_MAX_MM and rot <= REGISTRATION_MAX_DEG),
-           "limits": {"translation_mm": REGISTRATION_MAX_MM, "rotation_deg": REGISTRATION_MAX_DEG},
-           "joints": {}}
-    for j in model.joints:
-        p1 = T1.apply(j.axis_point[None])[0]
-        p2 = T2.apply(j.axis_point[None])[0]
-        u1, u2 = T1.rotation @ j.axis_direction, T2.rotation @ j.axis_direction
-        out["joints"][j.name] = {
-            "axis_point_mm": float(1e3 * np.linalg.norm(p1 - p2)),
-            "axis_angle_deg": float(np.degrees(np.arctan2(np.linalg.norm(np.cross(u1, u2)),
-                                                          float(np.clip(u1 @ u2, -1, 1)))))}
-    target = registered if registered is not None else model
-    target.metadata.setdefault("confidence", {})["registration"] = out
-    for j in target.joints:
-        if j.name in out["joints"]:
-            j.confidence = dict(j.confidence or {})
-            j.confidence["registration"] = {**out["joints"][j.name], "agree": out["agree"]}
-    if not out["agree"]:
-        log.warning("the two registrations disagree by %.1f mm / %.2f deg (limits %g mm, %g deg)",
-                    rms, rot, REGISTRATION_MAX_MM, REGISTRATION_MAX_DEG)
-    return out
-
-
-def check_registration_agreement(agreement: dict) -> None:
-    """Raise :class:`artrecon.errors.RegistrationMismatchError` when two registrations disagree
-    (``agreement`` from :func:`registration_agreement`), saying by how much and what to do.
-
-    Measured: 0.2-0.6 mm and at most 0.05 deg on every bundled scene's capture; a 20 mm / 4 deg
-    error in the camera's mount on the wrist gave 22-24 mm (pliers, truck, drawer; truck's axis
-    then 21 mm from the true one), arm encoder noise of 0.5 deg per joint 20-23 mm.
-    """
-    if agreement["agree"]:
-        return
-    from artrecon.errors import RegistrationMismatchError
-
-    worst = max(agreement["joints"].items(), key=lambda kv: kv[1]["axis_point_mm"],
-                default=None)
-    at_axis = (f"; joint {worst[0]}'s axis {worst[1]['axis_point_mm']:.1f} mm / "
-               f"{worst[1]['axis_angle_deg']:.2f} deg apart" if worst else "")
-    raise RegistrationMismatchError(
-        f"the two registrations of the model into the robot's frame disagree: camera centres "
-        f"against the arm's camera positions, and PnP of a fresh image with the hand-eye "
-        f"calibration, put the model {agreement['translation_mm']:.1f} mm (RMS) and "
-        f"{agreement['rotation_deg']:.2f} deg apart{at_axis} (limits "
-        f"{agreement['limits']['translation_mm']:g} mm, {agreement['limits']['rotation_deg']:g} "
-        "deg), so the axes cannot be handed to the arm. The arm's camera positions are off: "
-        "recalibrate the camera's mount on the wrist (hand-eye) and check the arm's joint "
-        "readings, then register again.", agreement)

@@ -69,5 +69,5 @@ class RegistrationMismatchError(MismatchError):
     Attributes
     ----------
     agreement : dict
-        The measured figures (:func:`artrecon.confidence.registration_agreement`).
+        The measured figures (:func:`artrecon.register.agreement.registration_agreement`).
     """

@@ -42,7 +42,7 @@ THUMBNAIL_WIDTH = 64
 #: Two images are near-identical when no thumbnail pixel differs by more than this many grey
 #: levels (of 255). The test is strict on purpose (the largest difference, not a mean): it only
 #: decides whether the user is told at once that nothing moved; sets that pass it still meet the
-#: later, match-based check (artrecon.confidence.check_motion).
+#: later, match-based check (artrecon.diagnosis.check_motion).
 NEAR_IDENTICAL_LEVELS = 6.0
 #: B is "A again" when at least this share of its images has a near-identical image in A (or
 #: the other way round).

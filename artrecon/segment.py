@@ -89,7 +89,7 @@ class SegmentationConfig:
     residual (tight: among equally large link sets, the one that fits its matches best)."""
     covariances: bool = True
     """Refit the links' motions with the matches' triangulation covariances when they are known
-    (:func:`artrecon.reconstruct.robust_refit`, :mod:`artrecon.uncertainty`); False: isotropic
+    (:func:`artrecon.link_motions.robust_refit`, :mod:`artrecon.uncertainty`); False: isotropic
     (every direction of every match alike)."""
 
 

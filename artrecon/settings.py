@@ -1,6 +1,6 @@
 """The reconstruction's tunable settings: one checked range per field.
 
-A user changes a field of a stage's config (:class:`artrecon.reconstruct.ReconstructConfig`)
+:class:`ReconstructConfig` holds every stage's config. A user changes a field of one
 with ``artrecon reconstruct ... --set STAGE.FIELD=VALUE`` or a scene's
 ``<numeric name="reconstruct:STAGE.FIELD" data="VALUE"/>``; :func:`apply_settings` checks
 each value against :data:`RANGES` before any work, so that a value no stage can run with
@@ -15,11 +15,22 @@ the defaults (each field's docstring says why) are what the method is measured w
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 
+import numpy as np
+
+from artrecon.assign import AssignConfig
+from artrecon.confidence import ConfidenceConfig
+from artrecon.dense import DenseConfig, RegionConfig
 from artrecon.errors import InputError
+from artrecon.features import GuidedConfig, MatchConfig
+from artrecon.freespace import FreeSpaceConfig
+from artrecon.joints import JointConfig
+from artrecon.segment import SegmentationConfig
+from artrecon.sfm import SfMConfig
 
-__all__ = ["Range", "Choice", "RANGES", "ORDERED", "check_setting", "apply_settings"]
+__all__ = ["Range", "Choice", "RANGES", "ORDERED", "check_setting", "apply_settings",
+           "ReconstructConfig", "with_settings", "jsonable"]
 
 
 @dataclass(frozen=True)
@@ -269,7 +280,7 @@ def check_setting(key: str, value, default):
 
 
 def apply_settings(config, settings: dict):
-    """A copy of a config of stage configs (:class:`artrecon.reconstruct.ReconstructConfig`)
+    """A copy of a config of stage configs (:class:`ReconstructConfig`)
     with ``settings`` (``{"stage.field": value}``) applied, each checked (:func:`check_setting`);
     InputError for an unknown stage or field, a bad value, or a pair of :data:`ORDERED` fields
     in the wrong order."""
@@ -298,3 +309,44 @@ def apply_settings(config, settings: dict):
             raise InputError(f"settings: {first} ({_num(a)}) may not exceed {second} "
                              f"({_num(b)}); change one of them")
     return out
+
+
+@dataclass(frozen=True)
+class ReconstructConfig:
+    """Settings of every stage."""
+
+    sfm: SfMConfig = field(default_factory=SfMConfig)
+    dense: DenseConfig = field(default_factory=DenseConfig)
+    region: RegionConfig = field(default_factory=RegionConfig)
+    match: MatchConfig = field(default_factory=MatchConfig)
+    segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
+    joints: JointConfig = field(default_factory=JointConfig)
+    assign: AssignConfig = field(default_factory=AssignConfig)
+    freespace: FreeSpaceConfig = field(default_factory=FreeSpaceConfig)
+    confidence: ConfidenceConfig = field(default_factory=ConfidenceConfig)
+    guided: GuidedConfig = field(default_factory=GuidedConfig)
+
+
+def with_settings(config: ReconstructConfig, settings: dict[str, float | int | bool | str]
+                  ) -> ReconstructConfig:
+    """``config`` with some settings changed, each named ``"stage.field"`` as in
+    :class:`ReconstructConfig` (e.g. ``{"dense.downsample": 1}``: full-resolution stereo for
+    thin objects). Each value is checked against the field's range and converted to its type
+    (:func:`apply_settings`); an unknown stage or field, or a value of the wrong
+    kind, not finite or out of range, raises InputError naming the valid range."""
+    return apply_settings(config, settings)
+
+
+def jsonable(obj):
+    """A record of a config (``dataclasses.asdict`` of one) as plain JSON values: dicts and
+    sequences walked (tuples become lists), numpy scalars as Python numbers, anything else not
+    JSON as its ``str``. The model's metadata records its config so."""
+    if isinstance(obj, dict):
+        return {k: jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    if isinstance(obj, (str, int, float, bool)) or obj is None:
+        return obj
+    return str(obj)

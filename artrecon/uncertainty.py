@@ -56,7 +56,7 @@ STUDENT_DOF = 1.0
 @dataclass(frozen=True)
 class MatchCovariances:
     """Triangulation covariances (:func:`point_covariances`, per unit image noise) of the points
-    :func:`artrecon.reconstruct.articulate` is given, row for row."""
+    :func:`artrecon.articulation.articulate` is given, row for row."""
 
     matches_a: np.ndarray
     """(n, 3, 3) of the matches' points of A ..."""

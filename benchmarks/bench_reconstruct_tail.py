@@ -75,13 +75,14 @@ def main() -> int:
     config = reconstruct.with_settings(reconstruct.ReconstructConfig(),
                                        load_scene(args.scene).reconstruct_settings or {})
     saved = {}
-    articulate = reconstruct.articulate
+    stage = importlib.import_module("artrecon.model_stage")  # where the run looks it up
+    articulate = stage.articulate
 
     def keep(*a, **k):  # the labels of the dense points, which the model holds only per link
         saved["art"] = articulate(*a, **k)
         return saved["art"]
 
-    reconstruct.articulate = keep
+    stage.articulate = keep
     load = os.getloadavg()[0]
     wall, cpu = time.perf_counter(), time.process_time()
     model = reconstruct.reconstruct(captures[0] / "set", captures[1] / "set", poses=True,

@@ -414,16 +414,17 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0,
 
     Reads ``model_dir``'s ``matches.npz`` and dense points, corrupts the object matches
     (:func:`corrupt_matches`), runs the pipeline's own steps after matching on them
-    (:func:`artrecon.reconstruct.articulate`: segmentation, the base anchored to the background,
+    (:func:`artrecon.articulation.articulate`: segmentation, the base anchored to the background,
     dense labelling -- geometric only: the image cues need the SfM images --, tree, joints and
     the confidence check that refuses weak joints) and writes ``out_dir/model.json`` and
     ``out_dir/matches.npz``; ``out_dir/a`` and ``out_dir/b`` link to the SfM models. Raises what
     those steps raise (a refusal included). ``settings``: the reconstruction's settings that
     differ from the defaults, as for artrecon.reconstruct.with_settings (the scene's).
     """
+    from artrecon.articulation import articulate
     from artrecon.dense import DensePoints
     from artrecon.model import ArticulatedModel
-    from artrecon.reconstruct import ReconstructConfig, articulate, with_settings
+    from artrecon.reconstruct import ReconstructConfig, with_settings
 
     model_dir, out_dir = Path(model_dir), Path(out_dir)
     m = dict(np.load(model_dir / "matches.npz"))

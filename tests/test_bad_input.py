@@ -474,7 +474,7 @@ def test_matches_of_different_objects_are_called_so():
     reported as such; a real one-body motion keeps its own message."""
     from scipy.spatial.transform import Rotation
 
-    from artrecon.confidence import explain_segmentation_failure
+    from artrecon.diagnosis import explain_segmentation_failure
     from artrecon.errors import DegenerateError, SingleBodyError
     from artrecon.procrustes import Similarity
     from artrecon.segment import SegmentationConfig, segment_links
@@ -501,7 +501,7 @@ def test_nothing_moved_is_told_from_the_matches_first():
     from scipy.spatial.transform import Rotation
     from synthetic import make_object
 
-    from artrecon.confidence import check_motion
+    from artrecon.diagnosis import check_motion
     from artrecon.errors import NoMotionError, SingleBodyError
     from artrecon.procrustes import Similarity
     from artrecon.segment import SegmentationConfig

@@ -15,7 +15,7 @@ from artrecon.errors import ReconstructionError, WeakEvidenceError
 from artrecon.joints import estimate_joints
 from artrecon.model import ArticulatedModel, Joint, Link
 from artrecon.procrustes import Similarity, shared_scale_transforms
-from artrecon.register import apply_registration
+from artrecon.register import agreement, apply_registration
 from artrecon.segment import Segmentation
 
 #: The synthetic object in metres: a 30 cm base with a 15 cm child (like the bundled scenes).
@@ -191,14 +191,14 @@ def test_registration_agreement_is_measured_at_each_axis():
     model = _model_with_confidence()
     T1 = Similarity(np.eye(3), np.zeros(3), 2.0)
     shift = Similarity(np.eye(3), np.array([0.004, 0.0, 0.003]), 1.0)  # 5 mm
-    out = conf.registration_agreement(model, T1, shift @ T1)
+    out = agreement.registration_agreement(model, T1, shift @ T1)
     assert out["translation_mm"] == pytest.approx(5.0) and out["agree"]
     assert out["joints"]["joint_0_1"]["axis_point_mm"] == pytest.approx(5.0)
     assert model.joints[0].confidence["registration"]["agree"]
     assert model.metadata["confidence"]["registration"]["rotation_deg"] == pytest.approx(0.0)
     tilt = Similarity(Rotation.from_rotvec([0, 0, np.deg2rad(3.0)]).as_matrix(), np.zeros(3), 1.0)
     reg = apply_registration(model, T1)
-    out = conf.registration_agreement(model, T1, tilt @ T1, registered=reg)
+    out = agreement.registration_agreement(model, T1, tilt @ T1, registered=reg)
     assert not out["agree"] and out["rotation_deg"] == pytest.approx(3.0)
     u = model.joints[0].axis_direction  # the axis turns by less than 3 deg about z
     assert out["joints"]["joint_0_1"]["axis_angle_deg"] == pytest.approx(
@@ -215,11 +215,11 @@ def test_registrations_that_disagree_are_refused():
     model = _model_with_confidence()
     T1 = Similarity(np.eye(3), np.zeros(3), 2.0)
     near = Similarity(np.eye(3), np.array([0.004, 0.0, 0.003]), 1.0)  # 5 mm
-    conf.check_registration_agreement(conf.registration_agreement(model, T1, near @ T1))
+    agreement.check_registration_agreement(agreement.registration_agreement(model, T1, near @ T1))
     far = Similarity(np.eye(3), np.array([0.0, 0.02, 0.01]), 1.0)  # 22 mm
-    out = conf.registration_agreement(model, T1, far @ T1)
+    out = agreement.registration_agreement(model, T1, far @ T1)
     with pytest.raises(RegistrationMismatchError) as info:
-        conf.check_registration_agreement(out)
+        agreement.check_registration_agreement(out)
     msg = str(info.value)
     assert "22.4 mm (RMS)" in msg and "joint joint_0_1's axis 22.4 mm" in msg
     assert "limits 10 mm, 2 deg" in msg and "recalibrate the camera's mount" in msg

@@ -241,8 +241,8 @@ def test_resegment_redoes_joints_on_wrong_matches(tmp_path):
 
 
 def test_resegment_runs_the_pipelines_steps(tmp_path):
-    """resegment runs the pipeline's own post-matching steps (reconstruct.articulate), not a
-    copy that can drift: here the matches of one link stop short of the joint (the scraper
+    """resegment runs the pipeline's own post-matching steps (artrecon.articulation.articulate),
+    not a copy that can drift: here the matches of one link stop short of the joint (the scraper
     truck's boom), so only the pipeline's adjacency on the links' dense points joins the two
     links; a tree built on the matches alone fails (tests/test_joints.py)."""
     from scipy.spatial import cKDTree

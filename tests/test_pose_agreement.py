@@ -121,7 +121,7 @@ def test_later_failures_name_poses_that_barely_passed():
     from types import SimpleNamespace
 
     from artrecon.errors import SingleBodyError, WeakEvidenceError
-    from artrecon.reconstruct import blame_poses
+    from artrecon.model_stage import blame_poses
 
     cfg = sfm.SfMConfig()
 

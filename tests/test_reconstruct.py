@@ -10,12 +10,14 @@ import render_fixture as rf
 from render_fixture import align_to_truth, axis_errors
 
 from artrecon import features
+from artrecon.articulation import table_points
 from artrecon.cli import main
 from artrecon.errors import InputError
 from artrecon.files import write_ply
+from artrecon.link_motions import merge_equivalent_links
 from artrecon.model import ArticulatedModel
 from artrecon.procrustes import Similarity
-from artrecon.reconstruct import merge_equivalent_links, reconstruct, table_points
+from artrecon.reconstruct import reconstruct
 from artrecon.segment import Segmentation
 
 #: Gates on the rendered hinge (30 degrees of motion). Measured with SfM from images:
@@ -221,8 +223,8 @@ def _thin_base_and_room(seed, room_shift=(0.0, 0.0, 0.0)):
 def test_the_base_is_anchored_to_the_room_it_stays_with():
     """The base's motion fitted with the background it carries is nearer its true motion (the
     frame change) than from its own 40 matches on a thin strip."""
+    from artrecon.link_motions import anchor_to_background, static_link
     from artrecon.procrustes import rotation_angle
-    from artrecon.reconstruct import anchor_to_background, static_link
 
     errors = []
     for seed in range(5):
@@ -244,8 +246,8 @@ def test_robust_refit_shuts_out_a_few_wrong_matches_near_the_hinge():
     B: the least-squares axis tilts, the robust refit's stays with the other matches, and the
     weights (per match, and per background match anchoring the base) say which were shut out."""
     from artrecon.joints import JointConfig, joint_from_motion, relative_motion
+    from artrecon.link_motions import anchor_to_background, robust_refit
     from artrecon.procrustes import rotation_angle, shared_scale_transforms
-    from artrecon.reconstruct import anchor_to_background, robust_refit
 
     tilt = []
     for seed in range(3):
@@ -276,7 +278,7 @@ def test_robust_refit_shuts_out_a_few_wrong_matches_near_the_hinge():
 def test_a_base_that_moved_against_the_room_is_not_anchored():
     """The object was pushed 2 cm across the table between the captures: the room no longer
     moves with the base, and the base keeps the fit of its own matches."""
-    from artrecon.reconstruct import anchor_to_background
+    from artrecon.link_motions import anchor_to_background
 
     pa, pb, seg, room_a, room_b, _ = _thin_base_and_room(0, room_shift=np.array([0.02, 0, 0]))
     anchored, anchor = anchor_to_background(pa, pb, seg, 1, room_a, room_b)
@@ -290,8 +292,9 @@ def test_links_that_move_alike_are_one_body_and_the_error_says_what_to_do():
     matches), with the counts."""
     from scipy.spatial.transform import Rotation
 
+    from artrecon.articulation import articulate
     from artrecon.errors import DegenerateError
-    from artrecon.reconstruct import ReconstructConfig, articulate
+    from artrecon.settings import ReconstructConfig
 
     rng = np.random.default_rng(0)
     body = rng.uniform(-1, 1, (400, 3))
@@ -311,7 +314,7 @@ def test_a_link_without_dense_surface_is_dropped_and_the_rest_renumbered():
     """A 'link' the dense labelling gives no point of A or B (a few chance pairings that moved
     together: 21 matches on pliers_panda) is removed: its matches become outliers, the links
     after it move up one number, and so do the labels, the anchors and the root."""
-    from artrecon.reconstruct import drop_unsupported_links
+    from artrecon.articulation import drop_unsupported_links
 
     T = [Similarity(np.eye(3), np.zeros(3), 1.0),
          Similarity(np.eye(3), np.array([0.1, 0, 0]), 1.0),

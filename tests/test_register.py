@@ -279,7 +279,7 @@ def test_apply_registration_maps_everything():
 def test_fresh_view_keypoints_are_not_shifted():
     """PnP's keypoints turn with the image: those of the image rotated by 180 deg, mapped back
     (OpenCV's x -> width - 1 - x), land on the image's own; OpenCV's default upsampling put
-    them 0.5 px apart (+0.25 px each, see artrecon.sfm._opencv_features)."""
+    them 0.5 px apart (+0.25 px each, see artrecon.sfm.extraction._opencv_features)."""
     import cv2
 
     from artrecon.register.pnp import sift_features

@@ -11,6 +11,7 @@ from render_fixture import align_to_truth, camera_centres
 
 from artrecon import io, sfm
 from artrecon.errors import InputError, ReconstructionError
+from artrecon.sfm import extraction
 
 #: Camera centre error gates after the similarity alignment, as a fraction of the ring radius
 #: (0.5 m): 0.5% = 2.5 mm. Measured: about 0.1 mm (SfM from images), ~0 with known poses.
@@ -189,7 +190,8 @@ def test_opencv_keypoints_are_not_shifted(tmp_path):
     """The OpenCV extractor's keypoints turn with the image: those of an image rotated by 180 deg,
     mapped back (COLMAP's x -> width - x), land where the image's own are. OpenCV's default
     upsampled first octave puts every keypoint +0.25 px off in x and y, which the rotation turns
-    into -0.25 px: 0.5 px apart (artrecon.sfm._opencv_features; a 3D error on thin links)."""
+    into -0.25 px: 0.5 px apart (artrecon.sfm.extraction._opencv_features; a 3D error on thin
+    links)."""
     import pycolmap
 
     size = (200, 150)
@@ -253,8 +255,8 @@ def test_keypoint_rows_in_colmaps_convention():
     back in the full image when it was shrunk by ``factor``, the affine shape turned by the
     orientation (OpenCV's angle in degrees)."""
     kps = [cv2.KeyPoint(10.0, 20.0, 4.0, 0.0), cv2.KeyPoint(3.0, 5.0, 8.0, 90.0)]
-    rows = sfm._colmap_keypoints(kps, 0.5)
+    rows = extraction._colmap_keypoints(kps, 0.5)
     assert rows.dtype == np.float32 and rows.shape == (2, 6)
     np.testing.assert_allclose(rows[0], [21, 41, 4, 0, 0, 4], atol=1e-5)
     np.testing.assert_allclose(rows[1], [7, 11, 0, -8, 8, 0], atol=1e-5)
-    assert sfm._colmap_keypoints((), 1.0).shape == (0, 6)
+    assert extraction._colmap_keypoints((), 1.0).shape == (0, 6)

@@ -134,7 +134,7 @@ def test_robust_refit_with_covariances_keeps_weight_matrices_for_the_bootstrap()
     anchors' weight matrices appended), and the confidence's linearised resampled fits agree
     with exact refits of the same resamples (identity matrices: weighted Procrustes)."""
     from artrecon.confidence import _batch_gls_step, _batch_rigid
-    from artrecon.reconstruct import robust_refit
+    from artrecon.link_motions import robust_refit
     from artrecon.segment import Segmentation
 
     pa, pb, cov_a, cov_b, truth = _thin_link(3)

@@ -56,7 +56,7 @@ def sift_features(image, *, max_features: int = 4096) -> tuple[np.ndarray, np.nd
     if img.ndim != 2 or img.dtype != np.uint8:
         raise ValueError(f"image must be (h, w, 3) or (h, w) uint8, got {img.shape} {img.dtype}")
     # precise upscaling: OpenCV's default places every keypoint +0.25 px off (see
-    # artrecon.sfm._opencv_features)
+    # artrecon.sfm.extraction._opencv_features)
     sift = cv2.SIFT_create(nfeatures=max_features, enable_precise_upscale=True)
     kps, desc = sift.detectAndCompute(img, None)
     if desc is None:

@@ -31,7 +31,6 @@ import cv2
 import numpy as np
 import pycolmap
 
-from artrecon.confidence import check_registration_agreement, registration_agreement
 from artrecon.errors import InputError, ReconstructionError
 from artrecon.files import (
     check_output_dir,
@@ -42,6 +41,7 @@ from artrecon.files import (
 )
 from artrecon.model import ArticulatedModel
 from artrecon.procrustes import Similarity
+from artrecon.register.agreement import check_registration_agreement, registration_agreement
 from artrecon.register.apply import apply_registration, compare_registrations
 from artrecon.register.centres import (
     CENTRE_INLIER_DISTANCE,
@@ -104,7 +104,7 @@ class Registration:
     routes: dict = field(default_factory=dict)
     """per route: ``T_robot_model`` (Similarity) and its report (JSON-ready)"""
     agreement: dict | None = None
-    """the two routes' agreement (:func:`artrecon.confidence.registration_agreement`)"""
+    """the two routes' agreement (:func:`artrecon.register.agreement.registration_agreement`)"""
 
     def report(self) -> dict:
         """``registration.json``."""

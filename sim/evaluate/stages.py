@@ -133,12 +133,13 @@ def capture_stage(scene: Scene, configuration: str, ev: EvalConfig, cache_root: 
 def _configuration_inputs(capture_key: str, configuration: str, ev: EvalConfig,
                           settings: dict | None) -> dict:
     import artrecon
-    from artrecon.reconstruct import ReconstructConfig, _jsonable, with_settings
+    from artrecon.reconstruct import ReconstructConfig, with_settings
+    from artrecon.settings import jsonable
 
     config = with_settings(ReconstructConfig(), settings or {})
     return {"capture": capture_key, "config": configuration, "poses": ev.poses,
-            "seed": ev.seed, "settings": _jsonable({k: asdict(getattr(config, k))
-                                                    for k in ("sfm", "dense", "region")}),
+            "seed": ev.seed, "settings": jsonable({k: asdict(getattr(config, k))
+                                                   for k in ("sfm", "dense", "region")}),
             "version": artrecon.__version__, "code": _configuration_sources()}
 
 
@@ -244,11 +245,12 @@ def reconstruct_stage(set_a: Path, set_b: Path, keys: tuple[str, str], ev: EvalC
     starting from the finished per-configuration stages when given (:func:`configuration_stage`).
     Returns the model folder (``model.json``, ``a/sparse/0`` ...), stage metadata, hit."""
     import artrecon
-    from artrecon.reconstruct import ReconstructConfig, _jsonable, reconstruct, with_settings
+    from artrecon.reconstruct import ReconstructConfig, reconstruct, with_settings
+    from artrecon.settings import jsonable
 
     config = with_settings(ReconstructConfig(), settings or {})
     inputs = {"captures": list(keys), "poses": ev.poses, "seed": ev.seed,
-              "config": _jsonable(asdict(config)), "version": artrecon.__version__,
+              "config": jsonable(asdict(config)), "version": artrecon.__version__,
               "code": _reconstruct_sources()}
 
     def build(folder: Path) -> dict:

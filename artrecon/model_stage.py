@@ -1,0 +1,204 @@
+"""The model stage: the two configurations in, the articulated model out.
+
+Input: what :mod:`artrecon.configuration` left for each configuration (its SfM model, dense
+points, object region). Output, written into the run's work folder (which
+:func:`artrecon.reconstruct.reconstruct` publishes whole as ``OUT``)::
+
+    matches.npz          the 3D-3D matches the links were fitted to (points_a, points_b,
+                         point3D_ids_a, point3D_ids_b, votes, labels; the guided matches
+                         appended) and the background matches (background_a, background_b)
+    links/link_<k>.ply   each link's dense oriented points (model frame)
+
+and the :class:`artrecon.model.ArticulatedModel` it returns (saved as ``model.json``).
+
+Steps: SIFT matches across the configurations lifted to 3D-3D pairs (:mod:`artrecon.features`),
+the object's and the background's told apart by the object regions, the candidates for the
+guided matching and the points' triangulation covariances (:mod:`artrecon.uncertainty`); then
+:func:`artrecon.articulation.articulate`, and the model with its metadata.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from artrecon import workers
+from artrecon._version import __version__
+from artrecon.articulation import articulate
+from artrecon.assign import views_from_sfm
+from artrecon.errors import DegenerateError, ReconstructionError, WeakEvidenceError
+from artrecon.features import (
+    PointDescriptors,
+    match_configurations,
+    point_descriptors,
+    tracked_features,
+)
+from artrecon.files import write_ply
+from artrecon.joints import KinematicTree
+from artrecon.model import ArticulatedModel
+from artrecon.settings import ReconstructConfig, jsonable
+from artrecon.sfm import SfMConfig, camera_summary
+from artrecon.uncertainty import MatchCovariances, point_covariances
+
+log = logging.getLogger(__name__)
+
+
+def build_model(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work: Path, seed: int,
+                config: ReconstructConfig, sfms: dict, denses: dict, occluders: dict,
+                regions: dict, backgrounds: dict, timings: dict) -> ArticulatedModel:
+    """The model stage, from the two configurations on (the caller runs it with one BLAS and
+    OpenCV thread per task, A's and B's own work side by side).
+
+    Parameters
+    ----------
+    set_a, set_b : artrecon.io.ImageSet
+    intr_a, intr_b : Intrinsics or None
+        The intrinsics given (None: SfM's own), for the model's metadata.
+    poses_a, poses_b : dict or None
+        The camera poses given: the model is then metric, in their world frame.
+    work : Path
+        The folder to write ``matches.npz`` and ``links/`` into (the caller saves the model).
+    seed : int
+    config : ReconstructConfig
+    sfms, denses, occluders, regions, backgrounds : dict
+        Per configuration (``"a"``, ``"b"``), from its
+        :class:`artrecon.configuration.Configuration`: the SfM result, dense points, occluders,
+        SfM point ids on the object and of the background sample.
+    timings : dict
+        Seconds per step so far; this stage's are added.
+
+    Returns
+    -------
+    ArticulatedModel
+    """
+    t = time.perf_counter()
+    feats = {k: tracked_features(sfms[k], regions[k] | backgrounds[k]) for k in ("a", "b")}
+    matches = match_configurations(sfms["a"], sfms["b"], config.match, seed,
+                                   features=(feats["a"], feats["b"]))
+    in_a = np.isin(matches.point3D_ids_a, list(regions["a"]))
+    in_b = np.isin(matches.point3D_ids_b, list(regions["b"]))
+    background = matches.subset(~in_a & ~in_b)
+    matches = matches.subset(in_a & in_b)
+    # the object's points the matching left out, for the guided matching
+    candidates = []
+    for key, matched in (("a", matches.point3D_ids_a), ("b", matches.point3D_ids_b)):
+        desc = point_descriptors(sfms[key], feats[key])
+        keep = np.isin(desc.ids, list(regions[key])) & ~np.isin(desc.ids, matched)
+        candidates.append(PointDescriptors(desc.ids[keep], desc.xyz[keep], desc.desc[keep]))
+    # how precisely each point is known (its track's views), for the links' motions
+    covariances = None
+    if config.segmentation.covariances:
+        cov = {}
+        for key in ("a", "b"):
+            rec = sfms[key].reconstruction
+            ids_m = matches.point3D_ids_a if key == "a" else matches.point3D_ids_b
+            ids_g = background.point3D_ids_a if key == "a" else background.point3D_ids_b
+            ids_c = candidates[0 if key == "a" else 1].ids
+            cov[key] = [point_covariances(rec, ids) for ids in (ids_m, ids_g, ids_c)]
+        covariances = MatchCovariances(cov["a"][0], cov["b"][0], cov["a"][1], cov["b"][1],
+                                       cov["a"][2], cov["b"][2])
+    timings["match"] = time.perf_counter() - t
+    views_a, views_b = workers.side_by_side(lambda: views_from_sfm(sfms["a"]),
+                                            lambda: views_from_sfm(sfms["b"]))
+    try:
+        art = articulate(matches.points_a, matches.points_b, background.points_a,
+                         background.points_b, denses["a"], denses["b"], config, seed,
+                         views_a=views_a, views_b=views_b,
+                         occluders_a=occluders["a"], occluders_b=occluders["b"],
+                         candidates=tuple(candidates), covariances=covariances)
+    except (DegenerateError, WeakEvidenceError) as exc:
+        # slightly wrong given poses show up as matches that do not move together
+        raise blame_poses(exc, sfms, config.sfm) from exc
+    timings.update(art.timings)
+    seg, links, root = art.segmentation, art.links, art.root
+    np.savez(work / "matches.npz", points_a=art.points_a, points_b=art.points_b,
+             point3D_ids_a=np.r_[matches.point3D_ids_a, art.guided_ids[:, 0]],
+             point3D_ids_b=np.r_[matches.point3D_ids_b, art.guided_ids[:, 1]],
+             votes=np.r_[matches.votes, np.zeros(len(art.guided_ids), np.int64)],
+             labels=seg.labels, background_a=background.points_a,
+             background_b=background.points_b)
+    (work / "links").mkdir(exist_ok=True)
+    for k, lk in enumerate(links):
+        write_ply(work / "links" / f"link_{k}.ply", lk.points, lk.normals, lk.colours)
+    metric = poses_a is not None and poses_b is not None
+    model = ArticulatedModel(
+        links=links, joints=art.joints, scale=1.0,
+        frames={"T_world_model": np.eye(4)} if metric else {},
+        root=art.tree.root, scale_a_to_b=float(seg.scale), scale_known=metric,
+        metadata={
+            "artrecon_version": __version__, "seed": seed,
+            "images_a": str(set_a.root), "images_b": str(set_b.root),
+            "camera_poses": "given (known-pose triangulation)" if metric else "SfM from images",
+            # given poses against the images, per configuration (artrecon.sfm.pose_agreement)
+            "pose_agreement": {k: s.pose_agreement for k, s in sfms.items()
+                               if s.pose_agreement is not None} or None,
+            "model_frame": "world frame of configuration A's camera poses (metres)" if metric
+            else "configuration A's SfM frame (arbitrary scale)",
+            # the focal length SfM used: given, from EXIF, or self-calibrated (and refined)
+            "intrinsics": {k: camera_summary(s.reconstruction, intr is not None,
+                                             s.model_dir.parents[1])
+                           for (k, s), intr in zip(sfms.items(), (intr_a, intr_b), strict=True)},
+            "registered_images": {k: s.reconstruction.num_reg_images() for k, s in sfms.items()},
+            "num_images": {k: s.num_images for k, s in sfms.items()},
+            "sparse_points": {k: s.reconstruction.num_points3D() for k, s in sfms.items()},
+            "dense_points": {k: len(d) for k, d in denses.items()},
+            "matches": len(matches), "guided_matches": len(art.guided_ids),
+            "match_outliers": int((seg.labels < 0).sum()),
+            "background_matches": len(background),
+            "root_from": "background" if root is not None else "largest link",
+            "root_background_matches": len(art.anchors[root][0]) if art.anchors else 0,
+            "link_matches": seg.sizes.tolist(),
+            "confidence": art.confidence,
+            # every adjacent pair's figures and how clearly the tree won (artrecon.joints)
+            "kinematic_tree": tree_record(art.tree),
+            "dense_unassigned": {"a": int((art.labels_a < 0).sum()),
+                                 "b": int((art.labels_b < 0).sum())},
+            "config": jsonable(asdict(config)),
+            "timings": timings,
+        })
+    log.info("model: %d links, %d joints, timings %s", len(links), len(art.joints),
+             {k: round(v, 1) for k, v in timings.items()})
+    return model
+
+
+def blame_poses(err: Exception, sfms: dict, config: SfMConfig) -> Exception:
+    """``err`` (a segmentation or joint-evidence failure) with the given camera poses named as its
+    likely cause, when they were given and agree with the images worse than
+    ``config.suspect_pose_epipolar_px`` (though well enough to pass the pose check); else ``err``.
+
+    Slightly wrong poses (encoder noise, a camera mount error) put each configuration's points
+    in slightly different wrong places, so the matches across configurations stop moving
+    together, and segmentation blames the matches ("chance pairings", "too few inliers").
+    """
+    figures = {k: s.pose_agreement["epipolar_median_px"] for k, s in sfms.items()
+               if s.pose_agreement and s.pose_agreement.get("epipolar_median_px") is not None}
+    if not any(v > config.suspect_pose_epipolar_px for v in figures.values()):
+        return err
+    note = (" Likely cause: the given camera poses. They passed the pose check but agree with the "
+            "images only to a median " + ", ".join(f"{v:.2f} px ({k.upper()})"
+                                                   for k, v in sorted(figures.items()))
+            + " from the epipolar lines they predict (exact poses: ~0.1 px); such poses "
+            "(a hand-eye / camera mount calibration error, arm encoder errors) put the points of "
+            "the two configurations in differently wrong places, so their matches no longer move "
+            "together. Run without the poses (without --use-poses) so SfM recovers the cameras "
+            "from the images, or recalibrate the camera mount and the arm.")
+    if isinstance(err, WeakEvidenceError):
+        return WeakEvidenceError(str(err) + note, err.records)
+    try:
+        return type(err)(str(err) + note)
+    except TypeError:  # an error class with another constructor
+        return ReconstructionError(str(err) + note)
+
+
+def tree_record(tree: KinematicTree) -> dict:
+    """The tree's choice, for model.json: its edges, its margin over the next best tree and every
+    adjacent pair's figures (:attr:`KinematicTree.edge_figures`)."""
+    return {"edges": [list(e) for e in tree.edges], "root": int(tree.root),
+            "margin": float(tree.margin) if np.isfinite(tree.margin) else None,
+            "pairs": [{"links": list(pair), **{k: (list(v) if isinstance(v, tuple) else v)
+                                               for k, v in fig.items()}}
+                      for pair, fig in sorted(tree.edge_figures.items())]}
