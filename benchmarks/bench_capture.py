@@ -234,7 +234,8 @@ def bench_plan_cache(name: str, n_views: int, config: str = "a") -> dict:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("scenes", nargs="*", help="scene names (default: all bundled scenes)")
-    p.add_argument("--views", type=int, default=36, help="views per full ring of the capture")
+    p.add_argument("--views", type=int, default=views.DEFAULT_VIEWS_PER_RING,
+                   help="views per full ring of the capture")
     p.add_argument("--frames", type=int, default=12, help="views per render timing")
     p.add_argument("--config", nargs="+", default=["a"],
                    help="object configurations to capture (a, b or both)")

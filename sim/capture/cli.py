@@ -21,7 +21,7 @@ def main(argv=None) -> int:
     p.add_argument("scene", help="a bundled scene's name (pliers, truck, drawer) or an MJCF path")
     p.add_argument("--config", required=True, help="object configuration: a or b")
     p.add_argument("--out", required=True, type=Path, help="image set folder to create")
-    p.add_argument("--views", type=int, default=36,
+    p.add_argument("--views", type=int, default=views.DEFAULT_VIEWS_PER_RING,
                    help="views per full ring (default 36: neighbours 10 degrees apart)")
     p.add_argument("--seed", type=int, default=0, help="seed of ring phases and IK restarts")
     p.add_argument("--fill", type=float, default=0.6,

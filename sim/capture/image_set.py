@@ -84,7 +84,7 @@ class CaptureResult:
     ``cpu_s`` the whole capture's, all threads); not written to disk"""
 
 
-def capture(scene, config: str, out_dir, *, n_views: int = 36,
+def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_PER_RING,
             elevations_deg: tuple[float, ...] = (20.0, 40.0, 60.0),
             top_elevations_deg: tuple[float, ...] = (70.0,), fill: float = 0.6,
             fill_range: tuple[float, float] = (0.45, 0.75),

@@ -5,7 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from sim import perturb
-from sim.views import MIN_VIEWS  # fewest views per full ring a run may ask for (the capture's)
+
+# the capture's default and fewest views per full ring
+from sim.views import DEFAULT_VIEWS_PER_RING, MIN_VIEWS
 
 #: Where the cameras can come from (:attr:`EvalConfig.poses`).
 POSE_SOURCES = ("fk", "images")
@@ -20,7 +22,7 @@ STAGES = ("capture_a", "capture_b", "sfm", "dense", "matching", "segmentation_jo
 class EvalConfig:
     """Settings of one evaluation run."""
 
-    views: int = 36
+    views: int = DEFAULT_VIEWS_PER_RING
     """views per full capture ring (sim.capture n_views)"""
     seed: int = 0
     """seed of the capture, reconstruction, registration, manipulation and surface samples"""

@@ -40,7 +40,7 @@ def look_at_pose(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     return T
 
 
-def ring_camera_poses(target, distance: float, elevation: float, n: int = 36,
+def ring_camera_poses(target, distance: float, elevation: float, n: int,
                       azimuth0: float = 0.0) -> np.ndarray:
     """Cameras on a horizontal ring around ``target``, all looking at it (OpenCV convention).
 

@@ -25,6 +25,7 @@ from sim.views.planner import (
     plan_capture,
 )
 from sim.views.records import (
+    DEFAULT_VIEWS_PER_RING,
     MAX_NEIGHBOUR_ANGLE_DEG,
     MIN_VIEWS,
     Ring,
@@ -57,7 +58,8 @@ from sim.views.solve import (
 
 __all__ = [
     "CLEARANCE_M", "ELEVATION_STEP_DEG", "FILL_STEP", "IK_RESTARTS", "MAX_NEIGHBOUR_ANGLE_DEG",
-    "MIN_RING_DISTANCE", "MIN_VIEWS", "PATH_CHECK_STEP", "PLAN_FORMAT", "PROBE_IK_RESTARTS",
+    "DEFAULT_VIEWS_PER_RING", "MIN_RING_DISTANCE", "MIN_VIEWS", "PATH_CHECK_STEP", "PLAN_FORMAT",
+    "PROBE_IK_RESTARTS",
     "PROBE_VIEWS", "ROLL_CANDIDATES_DEG", "Ring", "View", "ViewPlan", "ViewPlanConfig",
     "arm_collisions", "arm_link_bodies", "candidates", "check_paths", "clearance_violations",
     "fill_at_distance", "object_bodies", "object_bounding_sphere", "order_for_rail",

@@ -25,11 +25,17 @@ def views_problem(n_views: int, flag: str = "--views") -> str | None:
             f"degrees apart), got {n_views}")
 
 
+#: Views per full ring by default, the one place that says it: neighbours 10 degrees apart (the
+#: main job's configuration; ``--views`` of sim.capture and sim.evaluate, and every default that
+#: means "the usual capture", read it here).
+DEFAULT_VIEWS_PER_RING = 36
+
+
 @dataclass(frozen=True)
 class ViewPlanConfig:
     """How the views are laid out."""
 
-    views_per_ring: int = 36
+    views_per_ring: int = DEFAULT_VIEWS_PER_RING
     """views on each ring of `elevations_deg` (36 keeps neighbours 10 degrees apart)"""
     elevations_deg: tuple[float, ...] = (20.0, 40.0, 60.0)
     """desired elevations (degrees above the horizontal plane through the object's centre) of the
