@@ -16,7 +16,11 @@ of configuration A (and of B) must then join one link. For a point ``p`` of A, t
 3. **Photo-consistency.** A small patch on ``p``'s tangent plane, seen in the A image that sees it
    best, must look like the same patch moved by ``T_k`` in the B image that sees ``q`` best
    (normalised cross-correlation, plane-induced sampling). This decides sliding surfaces, which
-   the geometry cannot.
+   the geometry cannot. "Sees" is the dense stage's word (:func:`seen_by`: the view's own depth
+   map agreed with the point; for ``q``, with B's point it lands on), not the z-buffers' alone:
+   the arm that carries the camera is in front of the object in some views and in no z-buffer,
+   and its patches (cabinet's carcass and door walls: median NCC 0.05-0.12 for the right link)
+   said nothing about the object.
 4. **Nearest match.** A weak prior for the link of the nearest segmented SIFT match.
 
 Labels are smooth on the surface: the costs are the unary terms of a Potts model on the
@@ -57,6 +61,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import map_coordinates, minimum_filter
 from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from artrecon.errors import ReconstructionError
@@ -118,12 +123,15 @@ class AssignConfig:
 class CameraView:
     """One posed image: ``K`` (3, 3) OpenCV, ``T_cw`` (4, 4) camera from world, grey image
     (float32) and, optionally, the colour image (h, w, 3) uint8 (the table free-space test,
-    :mod:`artrecon.freespace`, needs it)."""
+    :mod:`artrecon.freespace`, needs it) and its name (then the photo patches come only from
+    views that the dense stage found to see the point: :func:`seen_by`)."""
 
     K: np.ndarray
     T_cw: np.ndarray
     image: np.ndarray
     colour: np.ndarray | None = None
+    name: str | None = None
+    """the image's name (a column of :attr:`artrecon.dense.DensePoints.image_names`)"""
 
     @property
     def centre(self) -> np.ndarray:
@@ -153,8 +161,27 @@ def views_from_sfm(sfm) -> list[CameraView]:
             raise ReconstructionError(f"cannot read image {sfm.image_dir / name} of the "
                                       "reconstruction; put it back or reconstruct again")
         views.append(CameraView(sfm.intrinsics(name), np.linalg.inv(poses[name]),
-                                grey.astype(np.float32), img[:, :, ::-1].copy()))
+                                grey.astype(np.float32), img[:, :, ::-1].copy(), name))
     return views
+
+
+def seen_by(dense, views: list[CameraView]) -> np.ndarray | None:
+    """(n, len(views)) bool: which views saw each dense point, by the dense stage's depth
+    fusion (``dense.visibility``: the view's own depth map agreed with the point), the columns
+    matched to the views by image name; None when a view has no name.
+
+    The z-buffers hold only what was reconstructed. Whatever stands between a camera and the
+    object but was not reconstructed (the arm carrying the camera, its own links in front of
+    the lens) is missing from them, so they call a point visible in views that did not see
+    it; the depth fusion did not count those views."""
+    if not views or any(v.name is None for v in views):
+        return None
+    column = {name: k for k, name in enumerate(dense.image_names)}
+    out = np.zeros((len(dense), len(views)), bool)
+    for c, v in enumerate(views):
+        if v.name in column:  # a view the dense stage did not use saw none of them
+            out[:, c] = dense.visibility[:, column[v.name]]
+    return out
 
 
 class _Surface:
@@ -248,6 +275,45 @@ def _graph(X, k, radius):
     return ((G + G.T) > 0).astype(np.float64)
 
 
+def _matches_along_surface(X, graph, matches, labels, K, limit):
+    """Distance from each point of X to the nearest segmented match, along the surface, and
+    that match's link.
+
+    Along the edges of the points' graph (:func:`_graph`), from the point nearest each match
+    (plus the distance to it). A straight line passes through the solid: the inside of a drawer
+    still in its carcass lies a few centimetres under the carcass's top and beside its walls,
+    whose matches were the nearest in a straight line (and its own link's, on its front, further
+    away), so the prior of the carcass outweighed what the drawer's visible inside says through
+    the smoothness (drawer: 2366 of its 9010 points in B labelled as the carcass).
+
+    Returns
+    -------
+    distance : (n,) float, inf beyond ``limit`` (and where no match's surface reaches)
+    link : (n,) int, the nearest match's link (-1: none within ``limit``)
+    """
+    n = len(X)
+    rows, cols = graph.nonzero()
+    length = np.linalg.norm(X[rows] - X[cols], axis=1)
+    snap, at = cKDTree(X).query(matches)
+    dist = np.full((K, n), np.inf)
+    for k in range(K):
+        mine = labels == k
+        if not mine.any():
+            continue
+        # a source node (index n) joined to each of link k's matches' nearest points (once
+        # each: coo_matrix adds duplicate entries up)
+        start = np.full(n, np.inf)
+        np.minimum.at(start, at[mine], snap[mine])
+        seeds = np.flatnonzero(np.isfinite(start))
+        r = np.r_[rows, np.full(len(seeds), n)]
+        c = np.r_[cols, seeds]
+        w = np.r_[length, start[seeds]] + 1e-12  # a zero weight would be no edge
+        G = coo_matrix((w, (r, c)), shape=(n + 1, n + 1)).tocsr()
+        dist[k] = dijkstra(G, directed=True, indices=n, limit=limit)[:n]
+    link = np.where(np.isfinite(dist).any(0), dist.argmin(0), -1)
+    return dist.min(0), link
+
+
 def _static_edges(X, S, k, radius) -> np.ndarray:
     """(n,) float: how many neighbours each point of X has among the static points S, by the rule
     of :func:`_graph` on X and S together (an edge where either end is among the other's k
@@ -287,7 +353,8 @@ class _Evidence:
     def __init__(self, src, src_normals, dst, transforms, residuals, match_src, match_labels,
                  surface_src: _Surface | None, surface_dst: _Surface | None,
                  config: AssignConfig, static: np.ndarray | None = None,
-                 base: int | None = None):
+                 base: int | None = None, seen_src: np.ndarray | None = None,
+                 seen_dst: np.ndarray | None = None):
         K, n = len(transforms), len(src)
         self.K, self.n, self.dst, self.config = K, n, dst, config
         #: the link the static points (the table) move with, each point's edges to them, and
@@ -300,8 +367,7 @@ class _Evidence:
         if not good.any():
             raise ValueError("assign: no segmented match to anchor the links (every match is "
                              "an outlier); the segmentation found no link")
-        d_match, i_match = cKDTree(match_src[good]).query(src)
-        self.nearest = match_labels[good][i_match]
+        self.nearest = match_labels[good][cKDTree(match_src[good]).query(src)[1]]
         if K == 1:
             return
         tree = cKDTree(dst)
@@ -309,8 +375,9 @@ class _Evidence:
         floor = config.spacing_factor * spacing
         self.moved = [T.apply(src) for T in transforms]
         self.threshold = [max(config.residual_factor * float(r), floor) for r in residuals]
-        self.fits_any = np.stack([tree.query(q)[0] < thr
-                                  for q, thr in zip(self.moved, self.threshold, strict=True)])
+        landing = [tree.query(q) for q in self.moved]  # (distance, index) of dst's nearest point
+        self.fits_any = np.stack([d < thr for (d, _), thr in zip(landing, self.threshold,
+                                                                 strict=True)])
         violations = np.zeros((K, n))
         ncc = np.full((K, n), np.nan)
         #: hypothesis k's counterpart is hidden from every camera of the other configuration
@@ -319,6 +386,8 @@ class _Evidence:
         patch_width = np.zeros(n)  # the photo patch's width on the surface (none: no patch)
         if surface_src is not None and surface_dst is not None:
             vis_src, _ = surface_src.status(src, config.depth_tolerance, floor)
+            if seen_src is not None:  # a view hidden by what was not reconstructed: no patch
+                vis_src &= seen_src.T
             best_src = surface_src.best_view(vis_src, src, src_normals)
             depth = np.full(n, np.nan)
             for c in np.unique(best_src[best_src >= 0]):
@@ -333,6 +402,11 @@ class _Evidence:
                 vis, bad = surface_dst.status(q, config.depth_tolerance, floor)
                 violations[k] = bad.sum(0)
                 self.hidden[k] = ~vis.any(0) & ~bad.any(0)
+                if seen_dst is not None:
+                    # q on the other configuration's points: only the views that saw the point
+                    # it lands on (elsewhere, on the table or in between, the z-buffer alone)
+                    on = self.fits_any[k]
+                    vis[:, on] &= seen_dst[landing[k][1][on]].T
                 best = surface_dst.best_view(vis, q, src_normals @ T.rotation.T)
                 patch = surface_dst.sample(best, T.apply(G.reshape(-1, 3)).reshape(G.shape))
                 ok = (best_src >= 0) & (best >= 0)
@@ -344,9 +418,13 @@ class _Evidence:
         photo = np.where(has, (1.0 - np.nan_to_num(ncc)) / 2.0, config.photo_unknown)
         U = U + config.cost_photo * np.where(has.any(0), photo, 0.0)
         src_spacing = float(np.median(cKDTree(src).query(src, k=2)[0][:, 1]))
-        prior = config.cost_match * np.exp(-d_match / (config.match_reach * src_spacing))
-        self.base = U + prior[None, :] * (np.arange(K)[:, None] != self.nearest[None, :])
         self.graph = _graph(src, config.neighbours, config.neighbour_radius)
+        reach = config.match_reach * src_spacing
+        d_match, nearest = _matches_along_surface(src, self.graph, match_src[good],
+                                                  match_labels[good], K, 5.0 * reach)
+        self.nearest = np.where(np.isfinite(d_match), nearest, self.nearest)
+        prior = config.cost_match * np.exp(-d_match / reach)
+        self.base = U + prior[None, :] * (np.arange(K)[:, None] != self.nearest[None, :])
         if base is not None:
             self.static_edges = _static_edges(src, static, config.neighbours,
                                               config.neighbour_radius)
@@ -466,13 +544,16 @@ def assign_dense_to_links(dense_a, dense_b, points_a, points_b, segmentation, *,
         occ_b = dense_b.points if occluders_b is None else occluders_b
         surf_a, surf_b = side_by_side(lambda: _Surface(views_a, occ_a, config.zbuffer_cell),
                                       lambda: _Surface(views_b, occ_b, config.zbuffer_cell))
+    seen_a = seen_b = None
+    if views_a and views_b:
+        seen_a, seen_b = seen_by(dense_a, views_a), seen_by(dense_b, views_b)
     # A's and B's cues and labels are independent within a pass: side by side
     ev_a, ev_b = side_by_side(
         lambda: _Evidence(dense_a.points, dense_a.normals, dense_b.points, Ts, rms, points_a,
-                          labels, surf_a, surf_b, config, static_a, base),
+                          labels, surf_a, surf_b, config, static_a, base, seen_a, seen_b),
         lambda: _Evidence(dense_b.points, dense_b.normals, dense_a.points, inv,
                           rms / segmentation.scale, points_b, labels, surf_b, surf_a, config,
-                          static_b, base))
+                          static_b, base, seen_b, seen_a))
     lab_a = lab_b = None
     for _ in range(config.passes):
         lab_a, lab_b = side_by_side(partial(ev_a.label, lab_b), partial(ev_b.label, lab_a))
