@@ -207,7 +207,7 @@ def read_mjcf(path: str | Path, body: str | None = None) -> SourceObject:
 def _own_texture(model, g: int, m: int):
     """A mesh geom's own texture: corner UVs (f, 3, 2) (OBJ convention) and its material's RGB
     image (h, w, 3) uint8, or None, None."""
-    from sim.render import material_texture, texture_image  # pyrender (1 s, needs EGL)
+    from sim.render import material_texture, texture_image  # pyrender (1 s, EGL): on use
 
     tex = material_texture(model, int(model.geom_matid[g]))
     if tex < 0 or int(model.mesh_texcoordnum[m]) == 0 or int(model.tex_type[tex]) != int(
