@@ -13,11 +13,13 @@ from artrecon.geometry import rotation_about
 from artrecon.procrustes import similarity_transform
 from artrecon.register import true_registration_error
 from sim import cache, metrics
-from sim.capture import read_depth_png, read_labels_png
 from sim.evaluate.gates import GATES, joint_passes
 from sim.evaluate.stages import _manipulate_sources, sfm_camera_poses
-from sim.manipulate import JointEstimate, ManipulationError, manipulate
 from sim.scene import Scene, SceneError
+
+# sim.capture and sim.manipulate load pyrender, which needs an EGL library: they are imported by
+# the functions that read the rendered truth or move the arm (the lines marked "EGL"), so that
+# sim.evaluate loads without one (its --help, the reports).
 
 #: Spacing (m) of the samples on the true surfaces: well under the 5 mm completeness radius and
 #: the 1 cm segmentation distance, so neither depends on where the samples fall.
@@ -266,6 +268,8 @@ def score_joints(scene: Scene, registered, link_map: dict[int, int] | None = Non
 def truth_views(set_dir: Path):
     """``(K, T_world_camera, depth, labels)`` of every image of a capture, from its ground truth
     (rendered depth and link labels at the true camera poses); for scoring only."""
+    from sim.capture import read_depth_png, read_labels_png  # EGL: see the top
+
     set_dir = Path(set_dir)
     K = np.asarray(read_json(set_dir / "cameras.json")["K"], float)
     for im in read_json(set_dir / "ground_truth" / "poses.json")["images"]:
@@ -332,6 +336,8 @@ def score_scene(scene: Scene, registered, sfm_poses: dict, T_reg, set_a: Path,
     ``scale_error_pct``; plus ``_samples`` and ``_point_labels`` (arrays, for the pictures;
     removed before writing).
     """
+    from sim.capture import read_depth_png  # EGL: see the top
+
     pts = [np.asarray(lk.points, float) for lk in registered.links]
     labels_pred = np.concatenate([np.full(len(p), k) for k, p in enumerate(pts)])
     P = np.concatenate(pts)
@@ -483,6 +489,8 @@ def gate_tolerance_estimates(tj) -> list:
     """Two estimates of the true joint ``tj`` as wrong as the accuracy gates allow: its axis
     turned by the axis-angle gate about each of two perpendiculars through its point and, for a
     revolute joint, moved by the axis-position gate along the other perpendicular."""
+    from sim.manipulate import JointEstimate  # EGL: see the top
+
     a = np.asarray(tj.axis, float)
     ref = np.array([0.0, 0.0, 1.0]) if abs(a[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
     u = np.cross(a, ref)
@@ -508,6 +516,8 @@ def manipulation_reference_stage(scene: Scene, true_joint: str, run: dict, q_sta
     stiff grasp). The manipulation's force limit is the larger of a multiple of the first and
     the worst of the others. Cached; a reference that cannot be
     planned or grasped is recorded (``error``)."""
+    from sim.manipulate import JointEstimate, ManipulationError, manipulate  # EGL: see the top
+
     tj = scene.joint(true_joint)
     est = JointEstimate(tj.type, tj.axis, tj.point, "ground truth (force reference)", tj.name)
     sense = 1.0 if float(np.dot(tj.axis, run["estimate"]["axis"])) >= 0 else -1.0

@@ -20,20 +20,6 @@ import scipy
 
 import artrecon
 import artrecon.configuration
-import sim.camera
-import sim.capture
-import sim.manipulate
-import sim.manipulate.candidates
-import sim.manipulate.estimate
-import sim.manipulate.execute
-import sim.manipulate.planning
-import sim.manipulate.planning_config
-import sim.manipulate.planning_world
-import sim.manipulate.world
-import sim.render
-import sim.robot
-import sim.scene
-import sim.views
 from artrecon import workers
 from artrecon.files import read_json
 from artrecon.reconstruct import (
@@ -51,12 +37,14 @@ from artrecon.register import (
 from artrecon.settings import jsonable
 from artrecon.sfm import camera_poses
 from sim import cache, perturb
-from sim.capture import capture, capture_fresh_view, plan_sources
 from sim.evaluate.config import EvalConfig, StageError
-from sim.manipulate import ManipulationError, joint_estimate_from_model, manipulate
 from sim.scene import Scene
 
 log = logging.getLogger(__name__)
+
+# sim.capture, sim.render and sim.manipulate load pyrender, which needs an EGL library: they are
+# imported by the functions that capture or move the arm (the lines marked "EGL"), so that
+# sim.evaluate loads without one (its --help, the reports).
 
 # ---------------------------------------------------------------------------- stages
 
@@ -75,6 +63,8 @@ def freeze_code_keys() -> None:
     loaded, not the files as they are later: hashed from disk at each stage, a file edited
     while a run goes on (a merge, an editor) filed stages built by the old code under the new
     code's key, and the next run took them as current. Called when an evaluation starts."""
+    from sim.capture import plan_sources  # EGL: see the top
+
     for fn in (_capture_sources, _configuration_sources, _reconstruct_sources,
                _manipulate_sources, plan_sources):
         fn()
@@ -82,8 +72,9 @@ def freeze_code_keys() -> None:
 
 @functools.cache
 def _capture_sources() -> str:
-    return cache.source_hash([sim.camera, sim.capture, sim.render, sim.robot, sim.scene,
-                              sim.views])
+    from sim import camera, capture, render, robot, scene, views  # EGL: see the top
+
+    return cache.source_hash([camera, capture, render, robot, scene, views])
 
 
 @functools.cache
@@ -107,10 +98,19 @@ def _configuration_sources() -> str:
 
 @functools.cache
 def _manipulate_sources() -> str:
-    return cache.source_hash([sim.manipulate, sim.manipulate.estimate, sim.manipulate.execute,
-                              sim.manipulate.candidates, sim.manipulate.planning,
-                              sim.manipulate.planning_config, sim.manipulate.planning_world,
-                              sim.manipulate.world, sim.robot, sim.scene, sim.views])
+    from sim import manipulate, robot, scene, views  # EGL: see the top
+    from sim.manipulate import (  # EGL: see the top
+        candidates,
+        estimate,
+        execute,
+        planning,
+        planning_config,
+        planning_world,
+        world,
+    )
+
+    return cache.source_hash([manipulate, estimate, execute, candidates, planning, planning_config,
+                              planning_world, world, robot, scene, views])
 
 
 def _capture_inputs(scene: Scene, configuration: str, ev: EvalConfig, scene_hash: str) -> dict:
@@ -123,6 +123,8 @@ def _capture_inputs(scene: Scene, configuration: str, ev: EvalConfig, scene_hash
 def capture_stage(scene: Scene, configuration: str, ev: EvalConfig, cache_root: Path,
                   scene_hash: str) -> tuple[Path, dict, bool]:
     """Capture one configuration (cached). Returns the image set folder, stage metadata, hit."""
+    from sim.capture import capture  # EGL: see the top
+
     def build(folder: Path) -> dict:
         res = capture(perturb.capture_scene(scene, ev.perturb, configuration), configuration,
                       folder / "set", n_views=ev.views, seed=ev.seed, progress=ev.progress,
@@ -302,6 +304,8 @@ def fresh_view_stage(scene: Scene, capture_set: Path, capture_key: str, ev: Eval
     """One image after the reconstruction, from an arm pose in neither image set (cached):
     :func:`sim.capture.capture_fresh_view` from where the capture of A left the arm, its pose
     file perturbed like the capture's (robustness runs). Returns its folder, metadata, hit."""
+    from sim.capture import capture_fresh_view  # EGL: see the top
+
     q_start = last_arm_pose(capture_set)
 
     def build(folder: Path) -> dict:
@@ -348,6 +352,12 @@ def manipulation_stage(scene: Scene, registered, model_joint: int, q_start, keys
     joint's child link and moves it by the model's motion A -> B along the model's axis, from
     ``q_start`` (where the capture left the arm). Returns the result record, stage metadata,
     hit. A plan or grasp that fails is recorded (``error``), not raised."""
+    from sim.manipulate import (  # EGL: see the top
+        ManipulationError,
+        joint_estimate_from_model,
+        manipulate,
+    )
+
     est = joint_estimate_from_model(registered, model_joint)
     amount = float(registered.joints[model_joint].motion)
     inputs = {"scene_hash": scene_hash, "keys": keys, "joint": model_joint, "seed": ev.seed,
