@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
+from tqdm import tqdm
 
 from artrecon.errors import ReconstructionError
 
@@ -338,8 +339,6 @@ def dense_points(sfm, config: DenseConfig = DenseConfig(), progress=None) -> Den
     clouds, colours, depth = [], [], {}
     it = sorted(partners.items())
     if progress is not None:
-        from tqdm import tqdm
-
         it = tqdm(it, desc="dense stereo", unit="pair", leave=False, file=progress)
     for i, j in it:
         shared = [index[p] for p in views[i].point_ids & views[j].point_ids if p in index]

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pycolmap
+from scipy.spatial import cKDTree
 
 from artrecon.errors import ReconstructionError
 
@@ -316,7 +317,6 @@ def guided_matches(transforms, radii, cand_a: PointDescriptors, cand_b: PointDes
     empty = (np.zeros(0, int), np.zeros(0, int), np.zeros(0, int))
     if len(cand_a) == 0 or len(cand_b) == 0 or not transforms:
         return empty
-    from scipy.spatial import cKDTree
 
     tree = cKDTree(cand_b.xyz)
     n = len(cand_a)

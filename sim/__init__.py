@@ -4,6 +4,7 @@ Rendering is offscreen on every machine (no display, no GPU needed): the EGL pla
 here, before any OpenGL import, so users never have to set it.
 """
 
+import logging
 import os
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
@@ -20,10 +21,11 @@ def _egl_device_type() -> None:
     (str) with EGL's prefix (bytes) once EGL is loaded, so importing pyrender after it fails.
     """
     try:
+        # here, after PYOPENGL_PLATFORM is set, and tried: a machine without EGL still loads sim
         import OpenGL.GL.shaders  # noqa: F401 (before OpenGL.EGL, see above)
-        from OpenGL import EGL
-        from OpenGL._opaque import opaque_pointer_cls
-        from OpenGL.raw.EGL import _types
+        from OpenGL import EGL  # after the platform is chosen above
+        from OpenGL._opaque import opaque_pointer_cls  # after the platform is chosen above
+        from OpenGL.raw.EGL import _types  # after the platform is chosen above
     except Exception:  # no EGL library here: rendering will say so when it is needed
         return
     if not hasattr(EGL, "EGLDeviceEXT"):
@@ -38,9 +40,7 @@ def _mujoco_warnings_to_log() -> None:
     """Send MuJoCo's warnings (e.g. "XML contains a 'NaN'") to the ``mujoco`` logger. Without a
     handler MuJoCo prints them and appends them to MUJOCO_LOG.TXT in the working folder: a file
     no command should write where the user happens to stand."""
-    import logging
-
-    import mujoco
+    import mujoco  # after the EGL setup above: mujoco loads its EGL backend on import
 
     log = logging.getLogger("mujoco")
     mujoco.set_mju_user_warning(lambda message: log.warning("MuJoCo: %s", message))

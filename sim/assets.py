@@ -38,6 +38,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import xatlas
 
 log = logging.getLogger(__name__)
 
@@ -454,8 +455,6 @@ def unwrap(vertices, faces, texel: float = OBJECT_TEXEL, max_size: int = MAX_ATL
     -------
     UVMesh
     """
-    import xatlas
-
     v, f = _check_mesh(vertices, faces)
     if not texel > 0:
         raise ValueError(f"texel must be positive, got {texel}")

@@ -20,8 +20,10 @@ instead of building it twice.
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import hashlib
+import importlib.util
 import json
 import logging
 import os
@@ -128,8 +130,6 @@ def source_hash(modules: Iterable) -> str:
 def _imported_modules(path: Path, package: str) -> set[str]:
     """Names of the ``package`` modules a source file imports (at any depth of the file:
     imports inside functions count)."""
-    import ast
-
     names: set[str] = set()
     for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
         if isinstance(node, ast.Import):
@@ -149,8 +149,6 @@ def module_closure(module, package: str | None = None) -> list[Path]:
     :func:`source_hash` of the whole package would be rebuilt for an edit it never runs.
     Importing a package's ``__init__`` counts as importing that file only.
     """
-    import importlib.util
-
     package = package or module.__name__.split(".")[0]
     seen: dict[str, Path] = {}
     todo = [module.__name__]
@@ -246,7 +244,7 @@ def _stage_lock(path: Path):
     keeps the folder whole (two processes may then both build the stage; the first one wins).
     """
     try:
-        import fcntl
+        import fcntl  # POSIX only: where it is missing, stages go unlocked (below)
     except ImportError:  # not POSIX
         yield
         return

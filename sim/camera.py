@@ -7,6 +7,7 @@ pi about x. Every conversion in the harness goes through :func:`convert_camera_p
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 
 #: Maps OpenCV camera coordinates to OpenGL camera coordinates (and back: it is its own inverse).
@@ -56,8 +57,6 @@ def mujoco_camera_intrinsics(model, camera: str | int) -> tuple[np.ndarray, tupl
     size : (width, height)
         Image size in pixels from the camera's ``resolution`` attribute.
     """
-    import mujoco
-
     cam_id = camera if isinstance(camera, int) else mujoco.mj_name2id(
         model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
     if cam_id < 0:

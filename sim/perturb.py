@@ -35,6 +35,7 @@ Fewer views need no perturbation: ``--views``.
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import os
 import shutil
@@ -42,9 +43,17 @@ import sys
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
+import cv2
 import numpy as np
+from PIL import Image
+from scipy.spatial.transform import Rotation
 
+from artrecon.articulation import articulate
+from artrecon.dense import DensePoints
 from artrecon.files import read_ply
+from artrecon.model import ArticulatedModel
+from artrecon.reconstruct import ReconstructConfig, with_settings
+from sim import cache, robot
 from sim.scene import Scene
 
 #: Neutral values: a perturbation at these does nothing.
@@ -121,8 +130,6 @@ class Perturbation:
 
 
 def _source() -> str:
-    from sim import cache
-
     return cache.source_hash([sys.modules[__name__]])
 
 
@@ -163,7 +170,7 @@ def apply_motion(scene: Scene, motion_deg: float | None = None,
 
 def object_textures(model, scene: Scene) -> list[int]:
     """Ids of the colour textures of the object's geoms (its links' bodies), sorted."""
-    from sim.render import material_texture  # pyrender and OpenGL: imported only when needed
+    from sim.render import material_texture  # pyrender (1 s, needs EGL): only to render
 
     bodies = {b for li in scene.links for b in li.body_ids}
     tex = {material_texture(model, int(model.geom_matid[g])) for g in range(model.ngeom)
@@ -234,7 +241,6 @@ def capture_scene(scene: Scene, p: Perturbation, configuration: str) -> Scene:
     part = p.render_part(configuration)
     if not part:
         return scene
-    import copy
 
     kw = {f.name: getattr(scene, f.name) for f in fields(Scene)}
     kw["model"] = copy.deepcopy(scene.model)
@@ -265,8 +271,6 @@ def degrade_image(img: np.ndarray, blur_sigma: float, noise_sigma: float,
                   rng: np.random.Generator) -> np.ndarray:
     """Gaussian blur (``blur_sigma`` px) then additive Gaussian noise (``noise_sigma`` grey
     levels) of a uint8 image, rounded and clipped to uint8."""
-    import cv2
-
     out = np.asarray(img)
     if blur_sigma > 0:
         out = cv2.GaussianBlur(out, (0, 0), sigmaX=blur_sigma, sigmaY=blur_sigma,
@@ -280,8 +284,6 @@ def degrade_image(img: np.ndarray, blur_sigma: float, noise_sigma: float,
 def mount_error(mm: float, deg: float, seed: int = 0) -> np.ndarray:
     """The camera mount error ``E`` (4, 4): a rotation of ``deg`` about a random axis and a
     translation of ``mm`` along a random direction (camera frame), from ``seed``."""
-    from scipy.spatial.transform import Rotation
-
     rng = np.random.default_rng([seed, 4711])
     axis, direction = rng.normal(size=3), rng.normal(size=3)
     E = np.eye(4)
@@ -320,7 +322,6 @@ def perturb_fresh_pose(pose_file: Path, scene: Scene, p: Perturbation, seed: int
     those perturbations."""
     if not (p.encoder_noise_deg > 0 or p.mount_error_mm > 0 or p.mount_error_deg > 0):
         return
-    from sim import robot
 
     kin = robot.load_arm_kinematics(scene.model)
     pose = json.loads(Path(pose_file).read_text())
@@ -339,8 +340,6 @@ def perturb_set(src: Path, dst: Path, scene: Scene, p: Perturbation, seed: int,
                 configuration: str) -> dict:
     """Copy the image set ``src`` to ``dst`` with :meth:`Perturbation.set_part` applied (images
     and cameras.json; ``ground_truth/`` is copied unchanged). Returns a summary."""
-    from PIL import Image
-
     shutil.copytree(src, dst)
     summary = {"perturbation": p.set_part()}
     if p.image_noise_sigma > 0 or p.image_blur_sigma > 0:
@@ -352,8 +351,6 @@ def perturb_set(src: Path, dst: Path, scene: Scene, p: Perturbation, seed: int,
                                           rng)).save(f)
         summary["images_degraded"] = len(files)
     if p.encoder_noise_deg > 0 or p.mount_error_mm > 0 or p.mount_error_deg > 0:
-        from sim import robot
-
         kin = robot.load_arm_kinematics(scene.model)
         cams = json.loads((dst / "cameras.json").read_text())
         new = perturb_cameras(cams, kin, p, seed, configuration)
@@ -371,8 +368,6 @@ def set_stage(set_dir: Path, capture_key: str, scene: Scene, p: Perturbation, se
               configuration: str, cache_root: Path) -> tuple[Path, str, dict]:
     """The perturbed copy of a captured set (cached). Returns (set folder, key, summary);
     the captured set and its key unchanged when :meth:`Perturbation.set_part` is empty."""
-    from sim import cache
-
     if not p.set_part():
         return set_dir, capture_key, {}
     inputs = {"capture": capture_key, "perturbation": p.set_part(), "seed": seed,
@@ -421,11 +416,6 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0,
     those steps raise (a refusal included). ``settings``: the reconstruction's settings that
     differ from the defaults, as for artrecon.reconstruct.with_settings (the scene's).
     """
-    from artrecon.articulation import articulate
-    from artrecon.dense import DensePoints
-    from artrecon.model import ArticulatedModel
-    from artrecon.reconstruct import ReconstructConfig, with_settings
-
     model_dir, out_dir = Path(model_dir), Path(out_dir)
     m = dict(np.load(model_dir / "matches.npz"))
     pa = m["points_a"]
@@ -466,8 +456,6 @@ def outlier_stage(model_dir: Path, reconstruct_key: str, p: Perturbation, seed: 
     """The reconstruction with :attr:`Perturbation.match_outliers` wrong matches (cached), its
     steps run with the reconstruction's ``settings`` (see :func:`resegment`). Returns (model
     folder, summary); ``model_dir`` itself when there are none."""
-    from sim import cache
-
     if not p.match_outliers:
         return model_dir, {}
     inputs = {"reconstruct": reconstruct_key, "match_outliers": p.match_outliers, "seed": seed,

@@ -26,6 +26,9 @@ import cv2
 import mujoco
 import numpy as np
 
+from sim.camera import intrinsics_matrix
+from sim.views import object_bounding_sphere, ring_distance
+
 log = logging.getLogger(__name__)
 
 
@@ -174,9 +177,7 @@ def check_texture(scene, config: TextureCheckConfig = TextureCheckConfig(),
         parts = tuple(PartTexture(scene.links[i].name, 0, 0.0, untextured[i], untextured[i])
                       for i in bare)
         raise TextureError(_message(scene, TextureReport(scene.name, parts, 0, config), parts))
-    from sim import render  # pyrender and OpenGL: only once rendering is needed
-    from sim.camera import intrinsics_matrix
-    from sim.views import object_bounding_sphere, ring_distance
+    from sim import render  # pyrender (1 s, needs EGL): only to render
 
     K = intrinsics_matrix(config.fx, config.fx, (config.width - 1) / 2, (config.height - 1) / 2)
     renderer = render.MjRenderer(model, geom_labels=labels)

@@ -6,12 +6,16 @@
   capture that writes it and by the harness's scoring side (scoring, the report's pictures, the
   robustness perturbations that record the error they injected), never by ``artrecon``, the
   robot's plan or the harness's stages;
-- no import cycle among the project's modules.
+- no import cycle among the project's modules;
+- what does not render loads without an EGL library (pyrender needs one on import).
 """
 
 from __future__ import annotations
 
 import ast
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -122,3 +126,27 @@ def test_no_import_cycles():
         if state.get(n) is None:
             visit(n, [n])
     assert not cycles, cycles[:5]
+
+
+#: Makes loading any EGL library fail, as on a machine without one (sitecustomize.py).
+_NO_EGL = """
+import ctypes
+_load = ctypes.CDLL.__init__
+def _no_egl(self, name, *args, **kwargs):
+    if name and "EGL" in str(name):
+        raise OSError(f"no {name} (test_boundaries)")
+    return _load(self, name, *args, **kwargs)
+ctypes.CDLL.__init__ = _no_egl
+"""
+
+
+def test_what_does_not_render_loads_without_egl(tmp_path):
+    """sim.evaluate (its --help, the reports), authoring, the perturbations and the texture check
+    import sim.render, sim.capture and sim.manipulate only where they render or move the arm."""
+    (tmp_path / "sitecustomize.py").write_text(_NO_EGL)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT)])}
+    code = ("import sim.evaluate, sim.evaluate.report, sim.author, sim.perturb, sim.texture_check\n"
+            "try:\n    import sim.render\nexcept ImportError:\n    print('no EGL')")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "no EGL"  # the test's EGL is really missing

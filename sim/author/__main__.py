@@ -12,6 +12,8 @@ from pathlib import Path
 from sim.author.build import import_object
 from sim.author.config import UP_AXES, ImportConfig
 from sim.author.source import AuthorError
+from sim.scene import load_scene
+from sim.texture_check import TextureError, check_texture
 
 #: Units a joint value may carry on the command line, to radians or metres.
 UNITS = {"": 1.0, "rad": 1.0, "deg": math.pi / 180, "m": 1.0, "cm": 0.01, "mm": 0.001}
@@ -109,9 +111,6 @@ def main(argv: list[str] | None = None) -> int:
     for n in res.notes:
         print(f"  note: {n}")
     if not args.no_texture_check:
-        from sim.scene import load_scene
-        from sim.texture_check import TextureError, check_texture
-
         try:
             report = check_texture(load_scene(res.scene))
         except TextureError as err:

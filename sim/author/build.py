@@ -37,17 +37,20 @@ import mujoco
 import numpy as np
 
 from sim.author.config import UP_AXES, ImportConfig
+from sim.author.mjcf import read_mjcf
 from sim.author.source import (
     AuthorError,
     SourceObject,
     pose,
     transform_points,
 )
+from sim.author.urdf import read_urdf
 from sim.author.writer import (
     SceneWriter,
     joint_range,
     sanitize,
 )
+from sim.scene import BUNDLED_SCENES_DIR, SceneError, load_scene, physics_warnings, stage_file
 
 log = logging.getLogger(__name__)
 
@@ -86,9 +89,6 @@ class ImportResult:
 
 def read_source(path: Path, body: str | None = None) -> SourceObject:
     """Read a URDF or an MJCF file (told apart by the root element)."""
-    from sim.author.mjcf import read_mjcf
-    from sim.author.urdf import read_urdf
-
     path = Path(path)
     if not path.is_file():
         raise AuthorError(f"{path}: no such file; give a URDF (e.g. PartNet-Mobility's "
@@ -195,8 +195,6 @@ def import_object(source: str | Path, out_dir: str | Path,
         the table, the scene does not validate or a configuration does not hold; or the output
         files exist (pass ``overwrite``). Nothing is written then.
     """
-    from sim.scene import BUNDLED_SCENES_DIR
-
     config = config or ImportConfig()
     source = Path(source).resolve()
     out_dir = Path(out_dir).resolve()
@@ -299,16 +297,12 @@ def import_object(source: str | Path, out_dir: str | Path,
 
 def stage_of(arm: str) -> Path:
     """The bundled stage carrying ``arm``."""
-    from sim.scene import stage_file
-
     return stage_file(arm)
 
 
 def _validate(path: Path, qa: dict, qb: dict) -> set[str]:
     """Load the scene, step it in A and B; returns the joints that creep (raises on anything
     else)."""
-    from sim.scene import SceneError, load_scene, physics_warnings
-
     try:
         scene = load_scene(path)
     except SceneError as err:

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+import trimesh
 
 from sim.author.source import (
     AuthorError,
@@ -46,8 +47,6 @@ def _name(model, obj, i: int) -> str:
 
 def _primitive_mesh(gtype: int, size: np.ndarray):
     """A triangle mesh of a primitive geom in its own frame (for visible primitives)."""
-    import trimesh
-
     if gtype == int(_GEOM.mjGEOM_BOX):
         return trimesh.creation.box(2 * size[:3])
     if gtype == int(_GEOM.mjGEOM_SPHERE):
@@ -208,7 +207,7 @@ def read_mjcf(path: str | Path, body: str | None = None) -> SourceObject:
 def _own_texture(model, g: int, m: int):
     """A mesh geom's own texture: corner UVs (f, 3, 2) (OBJ convention) and its material's RGB
     image (h, w, 3) uint8, or None, None."""
-    from sim.render import material_texture, texture_image  # pyrender, OpenGL: when needed
+    from sim.render import material_texture, texture_image  # pyrender (1 s, EGL): on use
 
     tex = material_texture(model, int(model.geom_matid[g]))
     if tex < 0 or int(model.mesh_texcoordnum[m]) == 0 or int(model.tex_type[tex]) != int(

@@ -13,6 +13,8 @@ import logging
 from pathlib import Path
 
 import numpy as np
+import trimesh
+import yourdfpy
 
 from sim.author.source import (
     AuthorError,
@@ -61,8 +63,6 @@ def _resolve(urdf_path: Path, filename: str) -> Path:
 def load_mesh(path: Path, where: str):
     """Vertices (n, 3), faces (m, 3), and the mesh's own texture if it has one: corner UVs
     (m, 3, 2) and image (h, w, 3) uint8, else None, None (all its pieces in one mesh)."""
-    import trimesh
-
     try:
         mesh = trimesh.load(str(path), force="mesh", process=False)
     except Exception as err:  # trimesh raises many kinds for a bad file
@@ -91,8 +91,6 @@ def _origin(element) -> np.ndarray:
 def _geometry(urdf_path: Path, element, link: str, kind: str, index: int):
     """A Mesh (visual or mesh collision) or a Primitive (box/cylinder/sphere collision) in the
     link's frame, or None for an empty geometry."""
-    import trimesh
-
     g = element.geometry
     T = _origin(element)
     where = f"{urdf_path}: <link name=\"{link}\"> <{kind}> #{index + 1}"
@@ -132,8 +130,6 @@ def read_urdf(path: str | Path) -> SourceObject:
         The file does not parse, has a floating or planar joint, a revolute or prismatic joint
         without limits, more than one root link, or a mesh that cannot be found or read.
     """
-    import yourdfpy
-
     path = Path(path).resolve()
     try:
         urdf = yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False,

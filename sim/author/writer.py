@@ -12,8 +12,9 @@ from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
+import trimesh
 
-from sim.assets import texture_mesh
+from sim.assets import texture_mesh, write_png
 from sim.author.source import (
     AuthorError,
     Primitive,
@@ -70,8 +71,6 @@ def joint_range(j, scale: float = 1.0) -> np.ndarray:
 
 def _hull(v: np.ndarray, name: str):
     """Convex hull (vertices, faces) of points, or None where it is flat or fails."""
-    import trimesh
-
     extent = np.ptp(v, axis=0)
     if len(v) < 4 or np.sort(extent)[0] < MIN_THICKNESS:
         return None
@@ -89,8 +88,6 @@ def _hull(v: np.ndarray, name: str):
 def _box_around(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Oriented box around points: (half sizes (3,), T_frame_box (4, 4)), at least
     MIN_THICKNESS thick."""
-    import trimesh
-
     try:
         T, extents = trimesh.bounds.oriented_bounds(v)
         T_frame_box = np.linalg.inv(T)
@@ -213,8 +210,6 @@ class SceneWriter:
 
     def _source_textured(self, adir: Path, part: str, link: str, m) -> None:
         """One visual mesh with its own UVs and image (``--texture source``)."""
-        from sim.assets import write_png
-
         if m.uv is None or m.image is None:
             raise AuthorError(f"{self.obj.path}: the visual mesh {m.name!r} of link {link!r} "
                               f"has no texture of its own (UVs and an image); fix: import with "

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import multiprocessing
+import multiprocessing.connection
 import os
 import signal
 import socket
@@ -20,6 +22,7 @@ import time
 import traceback
 from pathlib import Path
 
+from artrecon import workers
 from sim.evaluate import pictures, report
 from sim.evaluate.runner import run_meta
 
@@ -103,8 +106,6 @@ def _output_to(path):
 def _child(task: dict, conn, parent: int) -> None:
     """Entry of a local worker process: run the task, send its outcome, exit. Ctrl-C is the
     parent's to handle (it ends its workers); a killed parent takes its workers with it."""
-    from artrecon import workers
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     workers.die_with_parent(parent)
     outcome = execute(task)
@@ -142,8 +143,6 @@ class _Local:
     sending its outcome died."""
 
     def __init__(self, jobs: int):
-        import multiprocessing
-
         self.capacity = jobs
         self._ctx = multiprocessing.get_context("spawn")
         self._live: dict[int, tuple] = {}
@@ -158,14 +157,12 @@ class _Local:
         return proc.sentinel
 
     def wait(self, handles: list) -> list[tuple[object, dict]]:
-        from multiprocessing.connection import wait
-
         objs = {}
         for h in handles:
             proc, recv = self._live[h]
             objs[recv] = h
             objs[proc.sentinel] = h
-        ready = {objs[o] for o in wait(list(objs))}
+        ready = {objs[o] for o in multiprocessing.connection.wait(list(objs))}
         out = []
         for h in ready:
             proc, recv = self._live.pop(h)
@@ -204,7 +201,7 @@ class _Ray:
 
     def __init__(self, sweep):
         try:
-            import ray
+            import ray  # an optional extra (--backend ray): only when asked for
         except ImportError:
             raise SweepError(f"--backend ray needs Ray, which is not installed: {RAY_EXTRA} "
                              "(or pip install ray)") from None

@@ -189,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if cfg.backend == "ray":
         try:
-            import ray  # noqa: F401
+            import ray  # noqa: F401 (an optional extra: only to say it is missing)
         except ImportError:
             parser_.error(f"--backend ray needs Ray, which is not installed: {sweep.RAY_EXTRA}")
     seeds = args.seeds or [ev.seed]

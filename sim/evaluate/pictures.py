@@ -19,6 +19,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from artrecon.files import write_bytes_atomic
 from sim.evaluate.gates import GATES
@@ -164,8 +165,6 @@ def _write_png(path: Path, rgb: np.ndarray) -> None:
 
 def write_scene_pictures(result: dict, out_dir: Path) -> list[Path]:
     """The two pictures of a scene (whatever its result allows: none if it failed early)."""
-    from PIL import Image
-
     out_dir = Path(out_dir)
     name = result["scene"]
     written = []

@@ -63,6 +63,7 @@ import time
 import traceback
 from pathlib import Path
 
+from artrecon.model import ArticulatedModel
 from sim import cache, perturb
 from sim.evaluate import gates
 from sim.evaluate.config import EvalConfig
@@ -95,8 +96,6 @@ log = logging.getLogger(__name__)
 
 def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
     """Run and score one scene; never raises for a failing stage (``error`` says which)."""
-    from artrecon.model import ArticulatedModel
-
     freeze_code_keys()  # the stages are keyed by the code this process runs
 
     out_dir = Path(out_dir)

@@ -6,11 +6,20 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from artrecon.files import read_json
-from sim import metrics
-from sim.evaluate.gates import joint_passes
+from artrecon.geometry import rotation_about
+from artrecon.procrustes import similarity_transform
+from artrecon.register import true_registration_error
+from sim import cache, metrics
+from sim.evaluate.gates import GATES, joint_passes
+from sim.evaluate.stages import _manipulate_sources, sfm_camera_poses
 from sim.scene import Scene, SceneError
+
+# sim.capture and sim.manipulate load pyrender, which needs an EGL library: they are imported by
+# the functions that read the rendered truth or move the arm (the lines marked "EGL"), so that
+# sim.evaluate loads without one (its --help, the reports).
 
 #: Spacing (m) of the samples on the true surfaces: well under the 5 mm completeness radius and
 #: the 1 cm segmentation distance, so neither depends on where the samples fall.
@@ -110,8 +119,6 @@ def _similarity_pose(T, pose: np.ndarray) -> np.ndarray:
 def link_correspondence(labels_pred: np.ndarray, labels_true: np.ndarray) -> dict[int, int]:
     """``{model link: scene link index}``: the one-to-one renaming that maximises the points
     whose model link is their true link (the same Hungarian as the segmentation accuracy)."""
-    from scipy.optimize import linear_sum_assignment
-
     p, t = np.asarray(labels_pred), np.asarray(labels_true)
     keep = (p >= 0) & (t >= 0)
     if not keep.any():
@@ -261,7 +268,7 @@ def score_joints(scene: Scene, registered, link_map: dict[int, int] | None = Non
 def truth_views(set_dir: Path):
     """``(K, T_world_camera, depth, labels)`` of every image of a capture, from its ground truth
     (rendered depth and link labels at the true camera poses); for scoring only."""
-    from sim.capture import read_depth_png, read_labels_png
+    from sim.capture import read_depth_png, read_labels_png  # EGL: see the top
 
     set_dir = Path(set_dir)
     K = np.asarray(read_json(set_dir / "cameras.json")["K"], float)
@@ -329,8 +336,7 @@ def score_scene(scene: Scene, registered, sfm_poses: dict, T_reg, set_a: Path,
     ``scale_error_pct``; plus ``_samples`` and ``_point_labels`` (arrays, for the pictures;
     removed before writing).
     """
-    from artrecon.procrustes import similarity_transform
-    from sim.capture import read_depth_png
+    from sim.capture import read_depth_png  # EGL: see the top
 
     pts = [np.asarray(lk.points, float) for lk in registered.links]
     labels_pred = np.concatenate([np.full(len(p), k) for k, p in enumerate(pts)])
@@ -399,8 +405,6 @@ def score_scene(scene: Scene, registered, sfm_poses: dict, T_reg, set_a: Path,
 def score_registration(routes: dict, T_true, model) -> dict:
     """Each registration route's error against the true registration (rotation deg, translation
     mm at the model's points, scale %): ``{"truth_errors": {route: {...}}}``."""
-    from artrecon.register import true_registration_error
-
     pts = np.concatenate([np.asarray(lk.points, float) for lk in model.links if len(lk.points)])
     return {"truth_errors": {name: true_registration_error(T, T_true, pts)
                              for name, T in routes.items()}}
@@ -414,8 +418,6 @@ def score_manipulation(scene: Scene, model_joint: str, run: dict, row: dict | No
     ``force_factor`` times the force the true joint needs, the force of a joint as wrong as the
     accuracy gates allow (both from ``reference``) and ``force_floor_n``
     (:data:`sim.evaluate.gates.GATES`)."""
-    from sim.evaluate.gates import GATES
-
     out = {"model_joint": model_joint, "true_joint": None if row is None else row["name"],
            "error": run.get("error")}
     est = run.get("estimate") or {}
@@ -475,9 +477,6 @@ def summarise_manipulations(runs: list[dict]) -> dict:
 def true_registration(model_dir: Path, set_a: Path):
     """The true model-to-world similarity (an artrecon Similarity; scoring only): configuration
     A's SfM camera centres against the true camera centres of ``ground_truth/poses.json``."""
-    from artrecon.procrustes import similarity_transform
-    from sim.evaluate.stages import sfm_camera_poses
-
     sfm = sfm_camera_poses(model_dir, "a")
     truth = read_json(Path(set_a) / "ground_truth" / "poses.json")
     true = {im["file"]: np.asarray(im["T_world_camera"], float) for im in truth["images"]}
@@ -490,9 +489,7 @@ def gate_tolerance_estimates(tj) -> list:
     """Two estimates of the true joint ``tj`` as wrong as the accuracy gates allow: its axis
     turned by the axis-angle gate about each of two perpendiculars through its point and, for a
     revolute joint, moved by the axis-position gate along the other perpendicular."""
-    from artrecon.geometry import rotation_about
-    from sim.evaluate.gates import GATES
-    from sim.manipulate import JointEstimate
+    from sim.manipulate import JointEstimate  # EGL: see the top
 
     a = np.asarray(tj.axis, float)
     ref = np.array([0.0, 0.0, 1.0]) if abs(a[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
@@ -519,9 +516,7 @@ def manipulation_reference_stage(scene: Scene, true_joint: str, run: dict, q_sta
     stiff grasp). The manipulation's force limit is the larger of a multiple of the first and
     the worst of the others. Cached; a reference that cannot be
     planned or grasped is recorded (``error``)."""
-    from sim import cache
-    from sim.evaluate.stages import _manipulate_sources
-    from sim.manipulate import JointEstimate, ManipulationError, manipulate
+    from sim.manipulate import JointEstimate, ManipulationError, manipulate  # EGL: see the top
 
     tj = scene.joint(true_joint)
     est = JointEstimate(tj.type, tj.axis, tj.point, "ground truth (force reference)", tj.name)

@@ -3,33 +3,53 @@
 from __future__ import annotations
 
 import functools
+import importlib
+import inspect
 import logging
+import os
 import platform
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
+import cv2
 import mujoco
 import numpy as np
+import pinocchio
+import pycolmap
+import scipy
 
+import artrecon
+import artrecon.configuration
 from artrecon import workers
 from artrecon.files import read_json
+from artrecon.reconstruct import (
+    ReconstructConfig,
+    prepare_configuration,
+    reconstruct,
+    with_settings,
+)
+from artrecon.register import (
+    FreshImage,
+    read_fresh_pose,
+    register,
+    register_camera_centres,
+)
+from artrecon.settings import jsonable
+from artrecon.sfm import camera_poses
 from sim import cache, perturb
 from sim.evaluate.config import EvalConfig, StageError
 from sim.scene import Scene
 
 log = logging.getLogger(__name__)
 
+# sim.capture, sim.render and sim.manipulate load pyrender, which needs an EGL library: they are
+# imported by the functions that capture or move the arm (the lines marked "EGL"), so that
+# sim.evaluate loads without one (its --help, the reports).
+
 # ---------------------------------------------------------------------------- stages
 
 
 def versions() -> dict:
-    import cv2
-    import pinocchio
-    import pycolmap
-    import scipy
-
-    import artrecon
-
     return {"python": platform.python_version(), "numpy": np.__version__,
             "scipy": scipy.__version__, "mujoco": mujoco.__version__,
             "pycolmap": pycolmap.__version__, "pin": pinocchio.__version__,
@@ -43,7 +63,7 @@ def freeze_code_keys() -> None:
     loaded, not the files as they are later: hashed from disk at each stage, a file edited
     while a run goes on (a merge, an editor) filed stages built by the old code under the new
     code's key, and the next run took them as current. Called when an evaluation starts."""
-    from sim.capture import plan_sources
+    from sim.capture import plan_sources  # EGL: see the top
 
     for fn in (_capture_sources, _configuration_sources, _reconstruct_sources,
                _manipulate_sources, plan_sources):
@@ -52,15 +72,13 @@ def freeze_code_keys() -> None:
 
 @functools.cache
 def _capture_sources() -> str:
-    from sim import camera, capture, render, robot, scene, views
+    from sim import camera, capture, render, robot, scene, views  # EGL: see the top
 
     return cache.source_hash([camera, capture, render, robot, scene, views])
 
 
 @functools.cache
 def _reconstruct_sources() -> str:
-    import artrecon
-
     return cache.source_hash([artrecon])
 
 
@@ -70,23 +88,18 @@ def _configuration_sources() -> str:
     region: :mod:`artrecon.configuration` and what it imports, and reconstruct.py's functions
     that prepare its inputs), so that an edit of the later stages (matching, segmentation,
     joints, assignment) reuses the configurations instead of redoing SfM for it."""
-    import importlib
-    import inspect
-
-    from artrecon import configuration
-
-    reconstruct = importlib.import_module("artrecon.reconstruct")  # the module, not the function
-    parts = [cache.closure_hash(configuration)]
-    parts += [inspect.getsource(f) for f in (reconstruct.prepare_configuration,
-                                              reconstruct._resolve_inputs,
-                                              reconstruct._configuration)]
+    reconstruct_module = importlib.import_module("artrecon.reconstruct")  # not the function
+    parts = [cache.closure_hash(artrecon.configuration)]
+    parts += [inspect.getsource(f) for f in (reconstruct_module.prepare_configuration,
+                                              reconstruct_module._resolve_inputs,
+                                              reconstruct_module._configuration)]
     return cache.hash_bytes(*(p.encode() for p in parts))
 
 
 @functools.cache
 def _manipulate_sources() -> str:
-    from sim import manipulate, robot, scene, views
-    from sim.manipulate import (
+    from sim import manipulate, robot, scene, views  # EGL: see the top
+    from sim.manipulate import (  # EGL: see the top
         candidates,
         estimate,
         execute,
@@ -101,8 +114,6 @@ def _manipulate_sources() -> str:
 
 
 def _capture_inputs(scene: Scene, configuration: str, ev: EvalConfig, scene_hash: str) -> dict:
-    import artrecon
-
     return {"scene": scene.name, "scene_hash": scene_hash, "config": configuration,
             "views": ev.views, "seed": ev.seed, "version": artrecon.__version__,
             "code": _capture_sources(),
@@ -112,7 +123,7 @@ def _capture_inputs(scene: Scene, configuration: str, ev: EvalConfig, scene_hash
 def capture_stage(scene: Scene, configuration: str, ev: EvalConfig, cache_root: Path,
                   scene_hash: str) -> tuple[Path, dict, bool]:
     """Capture one configuration (cached). Returns the image set folder, stage metadata, hit."""
-    from sim.capture import capture
+    from sim.capture import capture  # EGL: see the top
 
     def build(folder: Path) -> dict:
         res = capture(perturb.capture_scene(scene, ev.perturb, configuration), configuration,
@@ -132,10 +143,6 @@ def capture_stage(scene: Scene, configuration: str, ev: EvalConfig, cache_root: 
 
 def _configuration_inputs(capture_key: str, configuration: str, ev: EvalConfig,
                           settings: dict | None) -> dict:
-    import artrecon
-    from artrecon.reconstruct import ReconstructConfig, with_settings
-    from artrecon.settings import jsonable
-
     config = with_settings(ReconstructConfig(), settings or {})
     return {"capture": capture_key, "config": configuration, "poses": ev.poses,
             "seed": ev.seed, "settings": jsonable({k: asdict(getattr(config, k))
@@ -148,8 +155,6 @@ def configuration_stage(set_dir: Path, capture_key: str, configuration: str, ev:
                         ) -> tuple[Path, dict, bool]:
     """artrecon's per-configuration stage (SfM or FK triangulation, dense points, the object
     region) of one captured set (cached). Returns its folder, stage metadata, hit."""
-    from artrecon.reconstruct import ReconstructConfig, prepare_configuration, with_settings
-
     config = with_settings(ReconstructConfig(), settings or {})
 
     def build(folder: Path) -> dict:
@@ -208,9 +213,6 @@ def configuration_chains(scene: Scene, ev: EvalConfig, cache_root: Path, scene_h
     out: dict[str, dict | BaseException] = {}
     pool = future = None
     if ev.parallel_capture:
-        import os
-        from dataclasses import replace
-
         # one core each: the CPU rasteriser's threads (read when a process first renders) and,
         # in artrecon's per-configuration stage, BLAS and OpenCV (artrecon.configuration)
         os.environ.setdefault("LP_NUM_THREADS", "1")
@@ -244,10 +246,6 @@ def reconstruct_stage(set_a: Path, set_b: Path, keys: tuple[str, str], ev: EvalC
     changed by ``settings`` (the scene's, :attr:`sim.scene.Scene.reconstruct_settings`),
     starting from the finished per-configuration stages when given (:func:`configuration_stage`).
     Returns the model folder (``model.json``, ``a/sparse/0`` ...), stage metadata, hit."""
-    import artrecon
-    from artrecon.reconstruct import ReconstructConfig, reconstruct, with_settings
-    from artrecon.settings import jsonable
-
     config = with_settings(ReconstructConfig(), settings or {})
     inputs = {"captures": list(keys), "poses": ev.poses, "seed": ev.seed,
               "config": jsonable(asdict(config)), "version": artrecon.__version__,
@@ -266,10 +264,6 @@ def reconstruct_stage(set_a: Path, set_b: Path, keys: tuple[str, str], ev: EvalC
 
 def sfm_camera_poses(model_dir: Path, configuration: str = "a") -> dict[str, np.ndarray]:
     """``{image name: T_model_camera (4, 4)}`` of a reconstruction's SfM model (OpenCV)."""
-    import pycolmap
-
-    from artrecon.sfm import camera_poses
-
     path = Path(model_dir) / configuration / "sparse" / "0"
     if not path.is_dir():
         raise FileNotFoundError(f"no SfM model at {path}: the reconstruction output lacks it")
@@ -281,8 +275,6 @@ def register_configuration(model_dir: Path, set_dir: Path, configuration: str, s
     reconstruction against the arm's FK camera positions of the capture), the SfM poses and the
     registration record. Used by scoring for configuration B (its points are scored where B's
     reconstruction saw them); the model itself is registered by :func:`register_stage`."""
-    from artrecon.register import register_camera_centres
-
     sfm = sfm_camera_poses(model_dir, configuration)
     cams = read_json(Path(set_dir) / "cameras.json")
     names = [im["file"] for im in cams["images"]
@@ -312,7 +304,7 @@ def fresh_view_stage(scene: Scene, capture_set: Path, capture_key: str, ev: Eval
     """One image after the reconstruction, from an arm pose in neither image set (cached):
     :func:`sim.capture.capture_fresh_view` from where the capture of A left the arm, its pose
     file perturbed like the capture's (robustness runs). Returns its folder, metadata, hit."""
-    from sim.capture import capture_fresh_view
+    from sim.capture import capture_fresh_view  # EGL: see the top
 
     q_start = last_arm_pose(capture_set)
 
@@ -342,8 +334,6 @@ def register_stage(model_dir: Path, set_a: Path, fresh: Path, seed: int) -> dict
     route (a)), ``routes`` ({route: Similarity}), ``sfm_poses`` ({name: T_model_camera}) and
     ``summary`` (JSON-ready report).
     """
-    from artrecon.register import FreshImage, read_fresh_pose, register
-
     pose = read_fresh_pose(Path(fresh) / "pose.json")
     res = register(model_dir, camera_poses=Path(set_a) / "cameras.json",
                    images=[FreshImage(Path(fresh) / "fresh.png", pose.get("T_world_flange"))],
@@ -362,7 +352,11 @@ def manipulation_stage(scene: Scene, registered, model_joint: int, q_start, keys
     joint's child link and moves it by the model's motion A -> B along the model's axis, from
     ``q_start`` (where the capture left the arm). Returns the result record, stage metadata,
     hit. A plan or grasp that fails is recorded (``error``), not raised."""
-    from sim.manipulate import ManipulationError, joint_estimate_from_model, manipulate
+    from sim.manipulate import (  # EGL: see the top
+        ManipulationError,
+        joint_estimate_from_model,
+        manipulate,
+    )
 
     est = joint_estimate_from_model(registered, model_joint)
     amount = float(registered.joints[model_joint].motion)

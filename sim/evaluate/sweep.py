@@ -49,7 +49,10 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+import artrecon
+import sim
 from artrecon.files import read_json, write_json_atomic
+from sim import cache
 from sim.evaluate import gates, report, sweep_report
 from sim.evaluate.backends import RAY_EXTRA, SweepError, execute, make_backend  # noqa: F401
 from sim.evaluate.config import EvalConfig
@@ -184,10 +187,6 @@ def plan(names: Iterable[str], ev: EvalConfig, seeds: Iterable[int] | None = Non
 def code_hash() -> str:
     """Hash of the source of ``artrecon`` and ``sim``: a run recorded under another one is run
     again on resume (its figures may have changed)."""
-    import artrecon
-    import sim
-    from sim import cache
-
     return cache.source_hash([artrecon, sim])[:16]
 
 

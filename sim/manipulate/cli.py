@@ -19,7 +19,9 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+from PIL import Image
 
+from artrecon.model import ArticulatedModel
 from sim import render, robot
 from sim.manipulate import (
     ManipulationError,
@@ -46,8 +48,6 @@ STRIP_FRAMES = 6
 def render_strip(world: World, result: ManipulationResult, path: Path,
                  n: int = STRIP_FRAMES) -> Path:
     """Render ``n`` snapshots of the approach and motion side by side into one PNG."""
-    from PIL import Image
-
     frames = [f for f in result.frames if f[1] != "travel"] or result.frames
     if not frames:
         raise ValueError("no frames recorded: run manipulate with record_every")
@@ -96,8 +96,6 @@ def main(argv=None) -> int:
         scene = load_scene(args.scene)
         registered, model_joint = None, None
         if args.model is not None:
-            from artrecon.model import ArticulatedModel
-
             registered = ArticulatedModel.load(args.model)
             names = [j.name for j in registered.joints]
             if args.joint is not None and args.joint not in names:

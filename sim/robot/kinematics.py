@@ -8,7 +8,9 @@ import logging
 import math
 from dataclasses import dataclass, replace
 
+import mujoco
 import numpy as np
+import pinocchio as pin
 
 from artrecon.geometry import pose, quat_wxyz_to_matrix
 from sim.camera import T_GL_CV
@@ -69,8 +71,6 @@ def check_pose(T, name: str) -> np.ndarray:
 
 
 def mj_id(model, kind, name: str, what: str) -> int:
-    import mujoco
-
     idx = mujoco.mj_name2id(model, kind, name)
     if idx < 0:
         raise ValueError(f"no {what} named {name!r} in the MuJoCo model: is the arm attached with "
@@ -88,8 +88,6 @@ class ArmKinematics:
 
     def __init__(self, pin_model, joint_names: tuple[str, ...], frames: dict[str, int],
                  spec: ArmSpec, azimuth_at_zero: float):
-        import pinocchio as pin
-
         self._pin = pin
         self.model = pin_model
         """the pinocchio model (one revolute joint per entry of joint_names)"""
@@ -317,9 +315,6 @@ def load_arm_kinematics(model, spec: ArmSpec | None = None) -> ArmKinematics:
     -------
     ArmKinematics
     """
-    import mujoco
-    import pinocchio as pin
-
     if spec is None:
         spec = arm_spec(model)
     obj = mujoco.mjtObj
@@ -420,8 +415,6 @@ def _add_dh_chain(pm, parent, placement, spec, model, arm_j, frames, se3, inerti
     """Append the DH arm's joints to ``pm`` after joint ``parent`` (DH frame 0 at ``placement``
     in that joint's frame); returns the last joint's id, the flange (DH frame 6) and the MuJoCo
     flange body in its frame."""
-    import pinocchio as pin
-
     p = spec.prefix
     jid = parent
     for i, (link, j) in enumerate(zip(spec.dh, arm_j, strict=True)):
@@ -443,8 +436,6 @@ def _add_urdf_chain(pm, parent, placement, spec, model, arm_j, frames, se3, iner
     link, which is the MJCF's base body) to ``pm`` after joint ``parent``, the root link at
     ``placement`` in that joint's frame; returns the last joint's id, the flange and the MuJoCo
     flange body in its frame (both identity: the flange body is the last joint's child link)."""
-    import pinocchio as pin
-
     path = ROOT / spec.urdf
     if not path.is_file():
         raise ValueError(f"{path}: URDF of arm {spec.name!r} not found; regenerate it with "
@@ -492,16 +483,12 @@ def _rigidly_on(model, body: int, root: int) -> bool:
 
 def qpos_indices(model, kin: ArmKinematics) -> np.ndarray:
     """qpos addresses of ``kin.joint_names`` in a MuJoCo model : (n,) int."""
-    import mujoco
-
     ids = [mj_id(model, mujoco.mjtObj.mjOBJ_JOINT, n, "joint") for n in kin.joint_names]
     return np.array([model.jnt_qposadr[j] for j in ids], dtype=int)
 
 
 def actuator_indices(model, kin: ArmKinematics) -> np.ndarray:
     """Indices into ``data.ctrl`` of the position actuators of ``kin.joint_names`` : (n,) int."""
-    import mujoco
-
     out = []
     for name in kin.joint_names:
         j = mj_id(model, mujoco.mjtObj.mjOBJ_JOINT, name, "joint")

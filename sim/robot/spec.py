@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import mujoco
 import numpy as np
 
 #: The repository root (robot model files are found from it).
@@ -151,8 +152,6 @@ def arm_spec(model) -> ArmSpec:
     ValueError
         The text names an arm that is not in :data:`ARMS`.
     """
-    import mujoco
-
     t = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXT, ARM_TEXT)
     if t < 0:
         return PUMA560

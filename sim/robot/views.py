@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 
+import mujoco
 import numpy as np
 
 from sim.robot.kinematics import ArmKinematics, IKResult, check_pose, mj_id
@@ -86,8 +87,6 @@ def arm_contacts(model, data, kin: ArmKinematics) -> list[tuple[str, str]]:
     -------
     pairs : list of (geom name or id, geom name or id)
     """
-    import mujoco
-
     rail_b = int(model.jnt_bodyid[mj_id(model, mujoco.mjtObj.mjOBJ_JOINT,
                                          kin.spec.rail_joint, "rail joint")])
     moving = {b for b in range(model.nbody) if _descends_from(model, b, rail_b)}

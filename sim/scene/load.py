@@ -12,6 +12,7 @@ import mujoco
 import numpy as np
 
 from artrecon.errors import InputError
+from artrecon.reconstruct import ReconstructConfig, with_settings
 from sim.scene.files import compile_scene, scene_path
 from sim.scene.records import CONFIGURATIONS, Coupling, Joint, Link, Scene, SceneError
 
@@ -99,10 +100,6 @@ def _parse_configurations(model: mujoco.MjModel, path: Path,
 def _parse_settings(model: mujoco.MjModel, path: Path) -> dict[str, float]:
     """``{"stage.field": value}`` from the ``reconstruct:`` numerics, checked against
     artrecon's ReconstructConfig."""
-    # here, not at the top: artrecon.reconstruct brings the whole pipeline (pycolmap, OpenCV:
-    # 2 s), which listing scenes or importing sim.scene for its records need not pay
-    from artrecon.reconstruct import ReconstructConfig, with_settings
-
     settings = {}
     for i in range(model.nnumeric):
         name = _name(model, mujoco.mjtObj.mjOBJ_NUMERIC, i)
