@@ -507,9 +507,11 @@ def gate_tolerance_estimates(tj) -> list:
 
 
 def manipulation_reference_stage(scene: Scene, true_joint: str, run: dict, q_start,
-                                 cache_root: Path, scene_hash: str) -> tuple[dict, dict, bool]:
-    """Scoring only, after the motion: the same grasp (point, normal, and the gripper's roll:
-    the same approach) and the same requested motion, but along the scene's TRUE joint
+                                 cache_root: Path, scene_hash: str, seed: int = 0
+                                 ) -> tuple[dict, dict, bool]:
+    """Scoring only, after the motion: the same grasp (point, normal, the gripper's roll and
+    the IK's restarts, ``seed``: the manipulation's own, so that the same arm configuration is
+    found) and the same requested motion, but along the scene's TRUE joint
     ``true_joint`` (the force the joint itself asks for: friction, damping, inertia, the arm's
     own dynamics), and along the true joint made as wrong as the accuracy gates allow
     (:func:`gate_tolerance_estimates`: the force an axis the gates accept may cost, through the
@@ -525,14 +527,14 @@ def manipulation_reference_stage(scene: Scene, true_joint: str, run: dict, q_sta
     inputs = {"scene_hash": scene_hash, "joint": true_joint, "amount": amount,
               "grasp": [run["grasp_point"], run["grasp_normal"], run.get("grasp_roll_deg")],
               "q_start": list(q_start),
-              "code": _manipulate_sources(), "tolerance": 1}
+              "code": _manipulate_sources(), "tolerance": 1, "seed": seed}
 
     def one(e) -> dict:
         try:
             res = manipulate(scene, e, amount, grasp_point=run["grasp_point"],
                              grasp_normal=run["grasp_normal"],
                              grasp_roll_deg=run.get("grasp_roll_deg"), q_start=q_start,
-                             joint=true_joint)
+                             joint=true_joint, seed=seed)
             return {"peak_force": res.peak_force, "rms_force": res.rms_force,
                     "peak_torque": res.peak_torque, "grasp_lost": res.grasp_lost,
                     "displacement": res.displacement(true_joint)}
