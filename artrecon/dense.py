@@ -457,29 +457,14 @@ class RegionConfig:
     the object)."""
 
 
-#: A support plane has the object and the room on the cameras' side only: at most this share of
-#: the points around the object lie beyond it by more than ``SUPPORT_BEYOND_BANDS`` inlier bands
-#: (the table's underside is never seen). Measured on the bundled scenes' tables (sparse and dense
-#: points, both configurations): at most 0.028; the rendered hinge's tilted lid, the densest plane
-#: of its SfM points (the table in front of the box lies beyond it), 0.54.
-SUPPORT_MAX_BEYOND = 0.1
-#: How far beyond the plane, in inlier bands, a point counts as seen through it: the table's own
-#: scatter stays inside one band (its underside tail within three).
-SUPPORT_BEYOND_BANDS = 3.0
-
-
 def fit_support_plane(P: np.ndarray, centres: np.ndarray, tol: float, iterations: int,
                       min_fraction: float, seed: int = 0):
-    """The plane the object stands on among points ``P`` (m, 3): RANSAC for the plane with the
-    most inliers (band ``tol``, ``iterations`` triplets from ``seed``) among those that can be a
-    support, refitted to its inliers. A support has every camera on one side and at most
-    ``SUPPORT_MAX_BEYOND`` of the points beyond it: a box's lid, tilted, textured and close to
-    the cameras, often holds more SfM points than the table, and taken for the table it left
-    the table behind the box as the object and dropped the box (the rendered hinge, 18 views).
+    """The plane the object stands on among points ``P`` (m, 3): RANSAC for the dominant plane
+    (inlier band ``tol``, ``iterations`` triplets from ``seed``), refitted to its inliers.
 
     Returns ``(normal (3,), centroid (3,), inliers (m,) bool)``, the normal towards the cameras,
-    or None when no support plane holds ``min_fraction`` of the points or the cameras
-    (``centres`` (k, 3)) lie on both sides of the refitted one."""
+    or None when the plane holds fewer than ``min_fraction`` of the points or the cameras
+    (``centres`` (k, 3)) lie on both sides of it (not a support plane)."""
     rng = np.random.default_rng(seed)
     best, best_n = None, 0
     for _ in range(iterations):
@@ -488,9 +473,8 @@ def fit_support_plane(P: np.ndarray, centres: np.ndarray, tol: float, iterations
         if np.linalg.norm(n) < 1e-12:
             continue
         n /= np.linalg.norm(n)
-        height = (P - a) @ n
-        cnt = int((np.abs(height) < tol).sum())
-        if cnt > best_n and _can_support(height, (centres - a) @ n, tol):
+        cnt = int((np.abs((P - a) @ n) < tol).sum())
+        if cnt > best_n:
             best, best_n = (n, a), cnt
     if best is None or best_n < min_fraction * len(P):
         return None
@@ -506,26 +490,14 @@ def fit_support_plane(P: np.ndarray, centres: np.ndarray, tol: float, iterations
     return (n if np.median(side) > 0 else -n), cen, inl
 
 
-def _can_support(height: np.ndarray, camera_height: np.ndarray, tol: float) -> bool:
-    """Whether a plane can be the support: all cameras on one side (``camera_height`` (k,) their
-    signed distances) and at most ``SUPPORT_MAX_BEYOND`` of the points (``height`` (m,)) more
-    than ``SUPPORT_BEYOND_BANDS`` x ``tol`` on the other."""
-    if np.all(camera_height < 0):
-        height = -height
-    elif not np.all(camera_height > 0):
-        return False
-    return float(np.mean(height < -SUPPORT_BEYOND_BANDS * tol)) <= SUPPORT_MAX_BEYOND
-
-
 def object_region(points: np.ndarray, centres: np.ndarray, axes: np.ndarray,
                   config: RegionConfig = RegionConfig(), seed: int = 0) -> np.ndarray:
     """Mask (n,) of the points that belong to the object rather than the background.
 
     The cameras ring the object and look at it, so (1) points farther from the focus point of
     the optical axes than ``radius_fraction`` x the median camera distance (walls, far table) are
-    dropped, and (2) the densest plane of what remains that can be a support
-    (:func:`fit_support_plane`: the cameras on one side, next to nothing beyond it) is the table
-    the object stands on: its inliers and everything beyond it are dropped.
+    dropped, and (2) the dominant plane of what remains, if the cameras all lie on one side of
+    it, is the table the object stands on: its inliers and everything beyond it are dropped.
 
     Parameters
     ----------

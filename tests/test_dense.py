@@ -96,34 +96,6 @@ def test_object_region_keeps_a_thin_object_lying_on_the_table():
     assert mask[:len(table)].mean() < 0.01
 
 
-@pytest.mark.parametrize("lid_deg", [25.0, 55.0])
-def test_object_region_is_not_fooled_by_a_dense_tilted_lid(lid_deg):
-    """The rendered hinge seen by one ring of cameras: its open lid, close to the cameras and
-    textured, holds more SfM points than the table around the box. The lid's plane is no support
-    (at 25 deg the table in front of the box lies beyond it, at 55 deg cameras are on both sides):
-    the table is found, the box and the lid are kept, the table is dropped."""
-    rng = np.random.default_rng(3)
-    r = 0.3 * np.sqrt(rng.uniform(0, 1, 1500))  # the table, uniform over a 0.3 m disc
-    t = rng.uniform(0, 2 * np.pi, 1500)
-    table = np.column_stack([r * np.cos(t), r * np.sin(t), rng.normal(0, 3e-4, 1500)])
-    table = table[(np.abs(table[:, 0]) > 0.15) | (np.abs(table[:, 1]) > 0.11)]  # not under the box
-    front = np.column_stack([rng.uniform(-0.15, 0.15, 300), np.full(300, -0.11),
-                             rng.uniform(0.0, 0.06, 300)])
-    top = np.column_stack([rng.uniform(-0.15, 0.15, 300), rng.uniform(-0.11, 0.11, 300),
-                           np.full(300, 0.06)])
-    a = np.deg2rad(lid_deg)  # hinged on the back top edge, the front edge lifted
-    s, u = rng.uniform(-0.15, 0.15, 2500), rng.uniform(0, 0.22, 2500)
-    lid = np.column_stack([s, 0.11 - u * np.cos(a), 0.06 + u * np.sin(a) + 0.015])
-    box = np.concatenate([front, top, lid])
-    pts = np.concatenate([table, box])
-    c, _ = ring(n=18, radius=0.5, height=0.4)
-    axes = np.array([0, 0, 0.08]) - c
-    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
-    mask = dense.object_region(pts, c, axes)
-    assert mask[len(table):].mean() > 0.95
-    assert mask[:len(table)].mean() < 0.01
-
-
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason=(
     "coverage 0.581 < 0.6 in configuration A (median 1.44 mm, p90 3.32 mm) at 1e7cd60. Traced "
