@@ -46,6 +46,7 @@ from sim.manipulate.planning import (
     scene_grasp_candidates,
 )
 from sim.manipulate.world import World, build_world, fresh_data
+from sim.scene import body_subtree
 
 log = logging.getLogger(__name__)
 
@@ -59,12 +60,6 @@ def moving_links(registered, joint: int) -> set[int]:
         out.add(k)
         todo += registered.children_of(k)
     return out
-
-
-def _descends(model, body: int, root: int) -> bool:
-    while body > 0 and body != root:
-        body = int(model.body_parentid[body])
-    return body == root
 
 
 def manipulate(scene, estimate: JointEstimate, amount: float, *, registered=None,
@@ -141,7 +136,7 @@ def manipulate(scene, estimate: JointEstimate, amount: float, *, registered=None
     else:  # the true world: the bodies that ride on the followed joint's child
         target = default_joint(scene) if joint is None else scene.joint(joint)
         root = scene.link(target.child).body_id
-        moving = {b for b in world.object_bodies if _descends(world.model, b, root)}
+        moving = set(world.object_bodies) & set(body_subtree(world.model, root))
     if grasp_point is not None:
         n = np.array([0.0, 0.0, 1.0]) if grasp_normal is None else np.asarray(grasp_normal, float)
         (cand,) = planning.classify_visibility(

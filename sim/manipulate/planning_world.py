@@ -26,6 +26,7 @@ from sim.camera import mujoco_camera_intrinsics
 from sim.manipulate.candidates import GraspCandidate, tangents, voxel_centres
 from sim.manipulate.planning_config import PlanningConfig
 from sim.manipulate.world import World
+from sim.scene import body_subtree
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +57,7 @@ class PlanningWorld:
         self.arm_links = views.arm_link_bodies(model, self.kin)
         arm = robot.arm_spec(model)
         self.flange_body = model.body(arm.prefix + arm.flange_body).id
-        self.gripper_bodies = {b for b in range(model.nbody) if self._below(b, self.flange_body)}
+        self.gripper_bodies = set(body_subtree(model, self.flange_body))
         self.source = source
         self.config = config
         self.model_geoms = model_geoms
@@ -67,11 +68,6 @@ class PlanningWorld:
         with (the registered model's spheres: ``travel_clearance``; the true object: none)"""
         self._groups = np.zeros(6, dtype=np.uint8)
         self._groups[COLLISION_GROUP] = 1
-
-    def _below(self, b: int, root: int) -> bool:
-        while b > 0 and b != root:
-            b = int(self.model.body_parentid[b])
-        return b == root
 
     @classmethod
     def from_model(cls, world: World, registered,
