@@ -12,10 +12,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from artrecon.files import make_work_dir
 from sim import render, robot, views
 from sim.capture.arm import Arm
 from sim.capture.capture_config import CaptureConfig
-from sim.capture.files import as_list, check_out_dir, png_bytes, work_dir
+from sim.capture.files import as_list, check_out_dir, png_bytes
 from sim.capture.rig import CaptureError, make_rig, true_camera_pose
 
 
@@ -99,7 +100,7 @@ def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.
     renderer = render.MjRenderer(model)
     color = renderer.render(data, K, T_true, width, height).color
     T_flange = kin.frame_pose(q, "flange")
-    tmp = work_dir(out_dir)
+    tmp = make_work_dir(out_dir)
     try:
         (tmp / "fresh.png").write_bytes(png_bytes(color, "colour"))
         pose = {"scene": sc.name, "config": config, "q": [float(x) for x in q],
@@ -113,8 +114,7 @@ def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.
         (tmp / "pose.json").write_text(json.dumps(pose, indent=2) + "\n")
         (tmp / "ground_truth.json").write_text(json.dumps(
             {"T_world_camera": as_list(T_true)}, indent=2) + "\n")
-        os.chmod(tmp, 0o755)
-        os.replace(tmp, out_dir)  # never over a folder made since the check: not publish()
+        os.replace(tmp, out_dir)  # never over a folder made since the check: not publish_dir()
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -26,6 +26,7 @@ import mujoco
 import numpy as np
 from tqdm import tqdm
 
+from artrecon.files import make_work_dir, publish_dir
 from artrecon.geometry import rotation_angle
 from sim import render, robot, views
 from sim.capture.arm import Arm
@@ -40,9 +41,7 @@ from sim.capture.files import (
     depth_png,
     geom_labels,
     labels_png,
-    publish,
     scene_inputs,
-    work_dir,
     write_pngs,
 )
 from sim.capture.plan import plan_views
@@ -182,7 +181,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
     if reachable:
         arm.place(reachable[0].q)
 
-    tmp = work_dir(out_dir)
+    tmp = make_work_dir(out_dir)
     # PNGs are compressed and written in a background thread (zlib releases the GIL) while the
     # arm moves to the next view
     writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="capture-png")
@@ -252,7 +251,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
             png_cpu += w.result()  # raises the first failed write
         for rel, obj in records.items():
             (tmp / rel).write_text(json.dumps(obj, indent=2) + "\n")
-        publish(tmp, out_dir)
+        publish_dir(tmp, out_dir)
     except BaseException:
         bar.close()
         writer.shutdown(wait=True, cancel_futures=True)
