@@ -7,7 +7,9 @@ distance and elevation, the joint holds and the per-step contact check are teste
 the full view plans of every bundled scene are checked for reachability in slow tests.
 """
 
+import dataclasses
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import mujoco
@@ -15,12 +17,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from sim import cache, render, robot, views
 from sim import capture as C
-from sim import render, robot, views
 from sim.camera import mujoco_camera_intrinsics
 from sim.capture.arm import MIN_JERK_PEAK_SPEED, Arm
 from sim.capture.files import write_pngs
-from sim.capture.image_set import OBJECT_DRIFT_TOL
+from sim.capture.rig import make_rig
 from sim.scene import BUNDLED_SCENES_DIR, HOLD_PREFIX, load_scene
 
 #: Rendered depth, back-projected with the recorded (FK) pose, must lie within this of the true
@@ -74,7 +76,8 @@ def test_image_set_layout_and_fk_poses(pliers_set):
         labels = np.asarray(Image.open(out / "ground_truth" / "labels" / im["file"]))
         assert 0.01 < np.mean(labels < C.LABEL_PNG_ARM) < 0.9
         # the object did not move
-        assert gt["object_joints"] == pytest.approx(sc.configuration("b"), abs=OBJECT_DRIFT_TOL)
+        assert gt["object_joints"] == pytest.approx(sc.configuration("b"),
+                                                    abs=C.CaptureConfig().object_drift_tol)
     assert truth["object_joints"] == sc.configuration("b")
     # ground truth never sits beside what artrecon reads
     assert "object_joints" not in json.dumps(cams)
@@ -212,6 +215,72 @@ def test_the_plan_cache_is_keyed_by_the_compiled_scene_and_the_plan_settings(tmp
     assert len(list(plans.glob("plan_a-*/plan.json"))) == 3
     report = _load_json(tmp_path / "moved" / "capture.json")
     assert report["captured"] == 8
+    # the same layout given as a config is the same plan; a changed tunable is another plan
+    layout = views.ViewPlanConfig(views_per_ring=8, elevations_deg=(30.0,), top_elevations_deg=())
+    assert C.capture(scene, "a", tmp_path / "as_config", plan_cache=plans, progress=False,
+                     view_plan=layout).plan_cached
+    assert not C.capture(scene, "a", tmp_path / "tuned", plan_cache=plans, progress=False,
+                         view_plan=replace(layout, clearance_m=0.012)).plan_cached
+    assert len(list(plans.glob("plan_a-*/plan.json"))) == 4
+
+
+#: A valid value, other than the default, of every field of ViewPlanConfig.
+CHANGED_PLAN_SETTINGS = {
+    "views_per_ring": 12, "elevations_deg": (25.0, 40.0, 60.0), "top_elevations_deg": (75.0,),
+    "fill": 0.55, "fill_range": (0.4, 0.75), "max_elevation_shift_deg": 5.0, "seed": 1,
+    "fill_step": 0.025, "elevation_step_deg": 5.0, "probe_views": 4, "probe_ik_restarts": 3,
+    "ik_restarts": 16, "rolled_ik_restarts": 1, "roll_candidates_deg": (0.0, 180.0),
+    "clearance_m": 0.015, "path_check_step": 0.01, "min_ring_distance": 0.3,
+}
+
+
+def test_every_view_plan_setting_is_in_the_plan_cache_key():
+    """A plan cached under one setting is never read for another: each field of the config,
+    changed alone, gives another key (and every field is listed here)."""
+    assert set(CHANGED_PLAN_SETTINGS) == {f.name for f in dataclasses.fields(views.ViewPlanConfig)}
+    rig = make_rig("pliers", "a")
+    args = (rig.model, rig.data, rig.kin, rig.K, rig.width, rig.height)
+    base = views.ViewPlanConfig()
+    key = cache.stage_key("plan_a", C.plan_inputs(*args, base))
+    assert key == cache.stage_key("plan_a", C.plan_inputs(*args, views.ViewPlanConfig()))
+    for name, value in CHANGED_PLAN_SETTINGS.items():
+        changed = replace(base, **{name: value})
+        assert cache.stage_key("plan_a", C.plan_inputs(*args, changed)) != key, name
+
+
+@pytest.mark.parametrize(("settings", "match"), [
+    ({"ik_restarts": -1}, "ik_restarts must be a whole number of at least 0, got -1"),
+    ({"probe_ik_restarts": 1.5}, "probe_ik_restarts must be a whole number"),
+    ({"probe_views": 0}, "probe_views must be a whole number of at least 1"),
+    ({"path_check_step": 0.0}, "path_check_step must be a positive number"),
+    ({"fill_step": -0.05}, "fill_step must be a positive number"),
+    ({"clearance_m": float("nan")}, "clearance_m must be a positive number"),
+    ({"min_ring_distance": -0.25}, "min_ring_distance must be a positive number"),
+    ({"roll_candidates_deg": (90.0, 0.0)}, "must start with 0"),
+    ({"roll_candidates_deg": ()}, "must start with 0"),
+])
+def test_a_view_plan_config_with_a_bad_tunable_is_refused(settings, match):
+    with pytest.raises(ValueError, match=match):
+        views.ViewPlanConfig(**settings)
+
+
+@pytest.mark.parametrize(("settings", "match"), [
+    ({"move_speed": 0.0}, "move_speed must be a positive number"),
+    ({"settle_speed": -1e-3}, "settle_speed must be a positive number"),
+    ({"settle_max_time": float("inf")}, "settle_max_time must be a positive number"),
+    ({"object_drift_tol": 0.0}, "object_drift_tol must be a positive number"),
+    ({"fresh_elevation_deg": 90.0}, "fresh_elevation_deg must lie in"),
+    ({"fresh_azimuth_offsets_deg": ()}, "at least one offset"),
+])
+def test_a_capture_config_with_a_bad_tunable_is_refused(settings, match):
+    with pytest.raises(ValueError, match=match):
+        C.CaptureConfig(**settings)
+
+
+def test_the_ring_layout_is_given_once(tmp_path):
+    with pytest.raises(ValueError, match="either as arguments .* or in view_plan, not both"):
+        C.capture("pliers", "a", tmp_path / "x", n_views=8, view_plan=views.ViewPlanConfig())
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_failed_capture_leaves_nothing(tmp_path, monkeypatch):
@@ -285,7 +354,7 @@ def test_ring_distance_makes_the_sphere_fill_the_image():
     d = views.ring_distance(0.2, K, 640, 480, fill=0.5)
     # the sphere's silhouette radius in pixels is f * tan(asin(r / d)): half of 240 px
     assert 500 * np.tan(np.arcsin(0.2 / d)) == pytest.approx(0.5 * 240)
-    assert views.ring_distance(1e-3, K, 640, 480, 0.5) == views.MIN_RING_DISTANCE
+    assert views.ring_distance(1e-3, K, 640, 480, 0.5) == views.ViewPlanConfig().min_ring_distance
 
 
 def test_ring_sizes_keep_neighbours_within_ten_degrees():
@@ -350,9 +419,9 @@ def test_planner_moves_a_ring_the_arm_cannot_reach_at_the_preferred_fill():
         distance=views.ring_distance(plan.radius, K, w, h, cfg.fill), fill=cfg.fill,
         n_views=ring.n_views, azimuth0=ring.azimuth0, top=True))
     preferred = views.order_for_rail(preferred, kin)
-    probe = preferred[:: max(1, len(preferred) // views.PROBE_VIEWS)]
+    probe = preferred[:: max(1, len(preferred) // cfg.probe_views)]
     views.solve_views(sc.model, data, kin, probe, seed=cfg.seed,
-                      restarts=views.PROBE_IK_RESTARTS, stop_at_first_failure=True)
+                      restarts=cfg.probe_ik_restarts, stop_at_first_failure=True)
     if all(v.reachable for v in probe):
         views.solve_views(sc.model, data, kin, preferred, seed=cfg.seed)
         views.check_paths(sc.model, data, kin, preferred)
@@ -452,10 +521,10 @@ def test_clearance_violations_match_the_distance_to_the_object():
         gap = min(mujoco.mj_geomDistance(model, data, a, b, 0.05, None)
                   for a in arm_geoms for b in other)
         hits = views.clearance_violations(model, data, links, robot_ids)
-        if gap > views.CLEARANCE_M + 1e-3:
+        if gap > views.ViewPlanConfig().clearance_m + 1e-3:
             assert not hits, (d, gap, hits)
             seen["clear"] += 1
-        elif gap < views.CLEARANCE_M - 1e-3:
+        elif gap < views.ViewPlanConfig().clearance_m - 1e-3:
             assert hits, (d, gap)
             seen["close"] += 1
     assert seen["clear"] and seen["close"], seen

@@ -18,10 +18,14 @@ Rooms: :mod:`~sim.capture.image_set` (:func:`capture`, one image set),
 :mod:`~sim.capture.fresh` (:func:`capture_fresh_view`, one more image for registration),
 :mod:`~sim.capture.plan` (the view plan and its cache), :mod:`~sim.capture.arm` (the arm's motion
 in physics), :mod:`~sim.capture.files` (the PNGs, label codes and the output folder),
-:mod:`~sim.capture.rig` (the held scene, the arm and its camera), :mod:`~sim.capture.cli`.
+:mod:`~sim.capture.rig` (the held scene, the arm and its camera),
+:mod:`~sim.capture.capture_config` (:class:`CaptureConfig`: the tunables of the arm's motion, the
+object's drift and the fresh view; the view plan's are in :class:`sim.views.ViewPlanConfig`),
+:mod:`~sim.capture.cli`.
 """
 
 from sim.capture.arm import min_jerk, servo_gains
+from sim.capture.capture_config import CaptureConfig
 from sim.capture.cli import main
 from sim.capture.files import (
     DEPTH_PNG_SCALE,
@@ -38,7 +42,7 @@ from sim.capture.rig import CONFIGS, CaptureError
 
 __all__ = [
     "CONFIGS", "DEPTH_PNG_SCALE", "LABEL_PNG_ARM", "LABEL_PNG_BACKGROUND", "LABEL_PNG_STAGE",
-    "MIN_CAPTURED_VIEWS", "CaptureError", "CaptureResult", "FreshView", "capture",
+    "MIN_CAPTURED_VIEWS", "CaptureConfig", "CaptureError", "CaptureResult", "FreshView", "capture",
     "capture_fresh_view", "main", "min_jerk", "plan_inputs", "plan_sources", "plan_views",
     "read_depth_png", "read_labels_png", "servo_gains",
 ]

@@ -8,15 +8,11 @@ import mujoco
 import numpy as np
 
 from sim import robot, views
+from sim.capture.capture_config import CaptureConfig
 
-#: Peak joint-space speed (rad/s) of the commanded motion between views (a minimum-jerk profile
-#: along the straight joint-space line, with computed-torque feed-forward: see :class:`Arm`).
-MOVE_SPEED = 1.0
-#: The arm has settled when its joint speeds are below this (rad/s) ...
-SETTLE_SPEED = 1e-3
-#: ... or after this much simulated time (s), whichever is first.
-SETTLE_MAX_TIME = 2.0
-#: Peak of the minimum-jerk profile's speed, in units of (distance / duration).
+#: Peak of the minimum-jerk profile's speed, in units of (distance / duration): 15/8, a property
+#: of the profile (:func:`min_jerk`), not a tunable; the tunables of the motion are fields of
+#: :class:`~sim.capture.capture_config.CaptureConfig`.
 MIN_JERK_PEAK_SPEED = 1.875
 
 
@@ -65,11 +61,12 @@ class Arm:
     coupling of the arm's motion into the rail, gravity, damping) plus the servo's own damping:
     computed-torque feed-forward through the position servo,
     ``ctrl = q_ref + (tau_ref + kv v_ref) / kp``. The arm also holds its targets without sag.
-    :attr:`max_path_deviation` records how far each joint strayed from the line.
+    :attr:`max_path_deviation` records how far each joint strayed from the line. ``config``
+    gives the peak speed of a move and when the arm has settled.
     """
 
-    def __init__(self, model, data, kin):
-        self.model, self.data, self.kin = model, data, kin
+    def __init__(self, model, data, kin, config: CaptureConfig = CaptureConfig()):
+        self.model, self.data, self.kin, self.config = model, data, kin, config
         self.qidx = robot.qpos_indices(model, kin)
         self.vidx = np.array([model.jnt_dofadr[mujoco.mj_name2id(
             model, mujoco.mjtObj.mjOBJ_JOINT, n)] for n in kin.joint_names])
@@ -138,7 +135,7 @@ class Arm:
         q0 = d.qpos[self.qidx].copy() if self.target is None else self.target
         dq = q - q0
         steps = max(1, int(np.ceil(MIN_JERK_PEAK_SPEED * float(np.max(np.abs(dq)))
-                                   / MOVE_SPEED / dt)))
+                                   / self.config.move_speed / dt)))
         duration = steps * dt
         hits: set[str] = set()
         deviation = np.zeros(len(self.qidx))
@@ -156,10 +153,10 @@ class Arm:
             np.maximum(deviation, np.abs(qpos[iq] - q_ref), out=deviation)
         self.target = q.copy()
         ctrl[ia] = self.command(q)
-        qvel, iv = self._qvel, self._iv
-        for _ in range(int(SETTLE_MAX_TIME / dt)):
+        qvel, iv, settled = self._qvel, self._iv, self.config.settle_speed
+        for _ in range(int(self.config.settle_max_time / dt)):
             self._step(hits)
-            if np.max(np.abs(qvel[iv])) < SETTLE_SPEED:
+            if np.max(np.abs(qvel[iv])) < settled:
                 break
         mujoco.mj_forward(m, d)
         hits.update(views.arm_collisions(m, d, self.links))

@@ -1,11 +1,10 @@
 """The files of an image set: the colour, depth and label PNGs (encoded, written and read back),
-the label codes, and the output folder (checked before any work, published whole)."""
+the label codes, and the output folder (checked before any work; built in
+:func:`artrecon.files.make_work_dir` and published whole by :func:`artrecon.files.publish_dir`)."""
 
 from __future__ import annotations
 
 import os
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
@@ -156,22 +155,3 @@ def check_out_dir(out_dir: Path, overwrite: bool, inputs=()) -> Path:
         raise FileExistsError(f"{out_dir} already exists (a {kind}); remove it, choose another "
                               "--out, or pass --overwrite")
     return check_output_dir(out_dir, overwrite=overwrite, marker="cameras.json")
-
-
-def work_dir(out_dir: Path) -> Path:
-    """An empty temporary folder beside ``out_dir``, to be published by :func:`publish`."""
-    return Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".tmp", dir=out_dir.parent))
-
-
-def publish(tmp: Path, out_dir: Path) -> None:
-    """Rename the complete folder ``tmp`` to ``out_dir`` (mode 755); an existing ``out_dir`` is
-    moved aside first and removed after, so ``out_dir`` is at every instant whole or absent."""
-    os.chmod(tmp, 0o755)
-    if out_dir.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".old",
-                                    dir=out_dir.parent))
-        os.replace(out_dir, old / "set")
-        os.replace(tmp, out_dir)
-        shutil.rmtree(old)
-    else:
-        os.replace(tmp, out_dir)

@@ -12,17 +12,12 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from artrecon.files import make_work_dir
 from sim import render, robot, views
 from sim.capture.arm import Arm
-from sim.capture.files import as_list, check_out_dir, png_bytes, work_dir
+from sim.capture.capture_config import CaptureConfig
+from sim.capture.files import as_list, check_out_dir, png_bytes
 from sim.capture.rig import CaptureError, make_rig, true_camera_pose
-
-#: The fresh view (:func:`capture_fresh_view`) lies between the first two capture rings (20 and
-#: 40 degrees by default), so no image of a set was taken from there ...
-FRESH_ELEVATION_DEG = 30.0
-#: ... and half a capture step (10 degrees at 36 views per ring) off the arm's current azimuth;
-#: further offsets are tried when that one is out of reach.
-FRESH_AZIMUTH_OFFSETS_DEG = (5.0, 15.0, -5.0, -15.0, 25.0, -25.0, 35.0, -35.0)
 
 
 @dataclass
@@ -42,15 +37,21 @@ class FreshView:
 
 
 def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.6,
-                       seed: int = 0) -> FreshView:
+                       seed: int = 0, capture_config: CaptureConfig = CaptureConfig(),
+                       plan_config: views.ViewPlanConfig = views.ViewPlanConfig()
+                       ) -> FreshView:
     """One more image after the capture, from an arm pose that neither image set holds.
 
     The arm starts at ``q_start`` (where the capture left it), plans a view at
-    :data:`FRESH_ELEVATION_DEG` half a capture step off its current azimuth (other offsets when
-    that one is out of reach), moves there in physics along a checked line and photographs the
-    object. Writes ``out_dir/fresh.png``, ``out_dir/pose.json`` (joint angles, flange and camera
-    pose from forward kinematics: what the robot knows) and ``out_dir/ground_truth.json`` (the
-    true camera pose, scoring only), whole or not at all.
+    ``capture_config.fresh_elevation_deg`` half a capture step off its current azimuth (the
+    other ``fresh_azimuth_offsets_deg`` when that one is out of reach), at the distance where the
+    object fills ``fill`` of the image, moves there in physics along a checked line and
+    photographs the object. The view is reached and checked with the tunables of
+    ``plan_config`` (IK restarts, rolls, clearance, path step, smallest distance; its ring
+    layout is not read), IK restarts seeded with ``seed``. Writes ``out_dir/fresh.png``,
+    ``out_dir/pose.json`` (joint angles, flange and camera pose from forward kinematics: what
+    the robot knows) and ``out_dir/ground_truth.json`` (the true camera pose, scoring only),
+    whole or not at all.
 
     Raises
     ------
@@ -65,20 +66,22 @@ def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.
     data.qpos[robot.qpos_indices(model, kin)] = q_start
     mujoco.mj_forward(model, data)
     centre, radius = views.object_bounding_sphere(model, data)
-    distance = views.ring_distance(radius, K, width, height, fill)
+    distance = views.ring_distance(radius, K, width, height, fill,
+                                   plan_config.min_ring_distance)
     eye = kin.camera_pose(q_start)[:3, 3] - centre
     az0 = float(np.arctan2(eye[1], eye[0]))
-    el = np.deg2rad(FRESH_ELEVATION_DEG)
+    el = np.deg2rad(capture_config.fresh_elevation_deg)
     reasons = []
     chosen = None
-    for k, off in enumerate(FRESH_AZIMUTH_OFFSETS_DEG):
+    for k, off in enumerate(capture_config.fresh_azimuth_offsets_deg):
         az = az0 + np.deg2rad(off)
         pos = centre + distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az),
                                             np.sin(el)])
         view = views.View(k, 0, az, el, distance, robot.look_at_pose(pos, centre))
-        views.solve_views(model, data, kin, [view], seed=seed, q_start=q_start)
+        views.solve_views(model, data, kin, [view], seed=seed, q_start=q_start,
+                          config=plan_config)
         if view.reachable:
-            views.check_paths(model, data, kin, [view], q_start=q_start)
+            views.check_paths(model, data, kin, [view], q_start=q_start, config=plan_config)
         if view.reachable:
             chosen = view
             break
@@ -86,7 +89,7 @@ def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.
     if chosen is None:
         raise CaptureError(f"no fresh view of {sc.name!r} is reachable near the arm's pose: "
                            + "; ".join(reasons[:3]))
-    arm = Arm(model, data, kin)
+    arm = Arm(model, data, kin, capture_config)
     arm.place(q_start)
     hits = arm.move(chosen.q)
     if hits:
@@ -97,7 +100,7 @@ def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.
     renderer = render.MjRenderer(model)
     color = renderer.render(data, K, T_true, width, height).color
     T_flange = kin.frame_pose(q, "flange")
-    tmp = work_dir(out_dir)
+    tmp = make_work_dir(out_dir)
     try:
         (tmp / "fresh.png").write_bytes(png_bytes(color, "colour"))
         pose = {"scene": sc.name, "config": config, "q": [float(x) for x in q],
@@ -105,13 +108,13 @@ def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.
                 "T_world_flange": as_list(T_flange),
                 "T_world_camera": as_list(kin.camera_pose(q)),
                 "view": {"azimuth_deg": float(np.rad2deg(chosen.azimuth)),
-                         "elevation_deg": FRESH_ELEVATION_DEG, "distance_m": distance,
+                         "elevation_deg": capture_config.fresh_elevation_deg,
+                         "distance_m": distance,
                          "roll_deg": chosen.roll_deg}}
         (tmp / "pose.json").write_text(json.dumps(pose, indent=2) + "\n")
         (tmp / "ground_truth.json").write_text(json.dumps(
             {"T_world_camera": as_list(T_true)}, indent=2) + "\n")
-        os.chmod(tmp, 0o755)
-        os.replace(tmp, out_dir)  # never over a folder made since the check: not publish()
+        os.replace(tmp, out_dir)  # never over a folder made since the check: not publish_dir()
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -26,9 +26,11 @@ import mujoco
 import numpy as np
 from tqdm import tqdm
 
+from artrecon.files import make_work_dir, publish_dir
 from artrecon.geometry import rotation_angle
 from sim import render, robot, views
 from sim.capture.arm import Arm
+from sim.capture.capture_config import CaptureConfig
 from sim.capture.files import (
     DEPTH_PNG_SCALE,
     LABEL_PNG_ARM,
@@ -39,9 +41,7 @@ from sim.capture.files import (
     depth_png,
     geom_labels,
     labels_png,
-    publish,
     scene_inputs,
-    work_dir,
     write_pngs,
 )
 from sim.capture.plan import plan_views
@@ -52,11 +52,6 @@ log = logging.getLogger(__name__)
 
 #: Fewest images a set may have: fewer cannot give a reconstruction from all sides.
 MIN_CAPTURED_VIEWS = 8
-
-#: The object may not move while the arm works around it: its joints must stay within this of
-#: the configuration (rad or m); 0.1 mrad / 0.1 mm is below anything a reconstruction resolves.
-#: The joint holds keep loaded hinges within 1e-5 of it (sim.scene.HOLD_SOLREF).
-OBJECT_DRIFT_TOL = 1e-4
 
 
 @dataclass
@@ -90,7 +85,9 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
             fill_range: tuple[float, float] = (0.45, 0.75),
             max_elevation_shift_deg: float = 10.0, seed: int = 0,
             free_camera_fallback: bool = False, overwrite: bool = False,
-            progress: bool = True, plan_cache=None) -> CaptureResult:
+            progress: bool = True, plan_cache=None,
+            view_plan: views.ViewPlanConfig | None = None,
+            capture_config: CaptureConfig = CaptureConfig()) -> CaptureResult:
     """Capture one image set of a scene in one configuration of its object.
 
     Parameters
@@ -121,6 +118,13 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
         Folder of cached view plans (:func:`plan_views`): the plan of these same inputs is read
         from there instead of solved, and a new one is stored there. The files written are the
         same either way.
+    view_plan : sim.views.ViewPlanConfig, optional
+        The whole view plan's settings, the ring layout and the planner's tunables (IK
+        restarts, clearance, the search's steps), instead of the layout arguments above (which
+        must then be left at their defaults); by default those arguments with the default
+        tunables.
+    capture_config : CaptureConfig
+        The arm's motion between views and how far the object may drift.
 
     Returns
     -------
@@ -132,6 +136,12 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
                                     top_elevations_deg=tuple(top_elevations_deg), fill=fill,
                                     fill_range=tuple(fill_range),
                                     max_elevation_shift_deg=max_elevation_shift_deg, seed=seed)
+    if view_plan is not None:
+        if plan_cfg != views.ViewPlanConfig():
+            raise ValueError("give the ring layout either as arguments (n_views, elevations_deg, "
+                             "top_elevations_deg, fill, fill_range, max_elevation_shift_deg, "
+                             "seed) or in view_plan, not both")
+        plan_cfg = view_plan
     out_dir = check_out_dir(Path(out_dir), overwrite, scene_inputs(scene))
     t_start = time.perf_counter()
     cpu_start, main_start = time.process_time(), time.thread_time()
@@ -167,11 +177,11 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
     arm_root = int(model.jnt_bodyid[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT,
                                                       kin.joint_names[0])])
     renderer = render.MjRenderer(model, geom_labels=geom_labels(model, sc, arm_root))
-    arm = Arm(model, data, kin)
+    arm = Arm(model, data, kin, capture_config)
     if reachable:
         arm.place(reachable[0].q)
 
-    tmp = work_dir(out_dir)
+    tmp = make_work_dir(out_dir)
     # PNGs are compressed and written in a background thread (zlib releases the GIL) while the
     # arm moves to the next view
     writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="capture-png")
@@ -197,7 +207,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
                         "try other elevations or --views")
             joints_now = sc.joint_values(data)
             drift = max((abs(joints_now[k] - joints_config[k]) for k in joints_now), default=0.0)
-            if drift > OBJECT_DRIFT_TOL:
+            if drift > capture_config.object_drift_tol:
                 raise CaptureError(
                     f"the arm moved the object of {sc.name!r} by {drift:.2e} (rad or m) while "
                     f"reaching view {i} (contacts: {', '.join(path_hits) or 'none seen'}); the "
@@ -241,7 +251,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
             png_cpu += w.result()  # raises the first failed write
         for rel, obj in records.items():
             (tmp / rel).write_text(json.dumps(obj, indent=2) + "\n")
-        publish(tmp, out_dir)
+        publish_dir(tmp, out_dir)
     except BaseException:
         bar.close()
         writer.shutdown(wait=True, cancel_futures=True)

@@ -5,25 +5,19 @@ chosen so that the arm reaches all of it), :mod:`~sim.views.rings` (the object's
 ring distances and views, the rail's order), :mod:`~sim.views.solve` (IK and the moves between
 views), :mod:`~sim.views.clearance` (what the arm comes close to), :mod:`~sim.views.records`
 (:class:`ViewPlanConfig`, :class:`View`, :class:`Ring`, :class:`ViewPlan`) and
-:mod:`~sim.views.plan_file` (a plan as JSON).
+:mod:`~sim.views.plan_file` (a plan as JSON). Every tunable of the planner (IK restarts, the
+clearance, the search's steps) is a field of :class:`ViewPlanConfig`, so the plan cache's key
+holds it.
 """
 
 from sim.views.clearance import (
-    CLEARANCE_M,
     arm_collisions,
     arm_link_bodies,
     clearance_violations,
     robot_bodies,
 )
 from sim.views.plan_file import PLAN_FORMAT, plan_from_json, plan_to_json
-from sim.views.planner import (
-    ELEVATION_STEP_DEG,
-    FILL_STEP,
-    PROBE_IK_RESTARTS,
-    PROBE_VIEWS,
-    candidates,
-    plan_capture,
-)
+from sim.views.planner import candidates, plan_capture
 from sim.views.records import (
     DEFAULT_VIEWS_PER_RING,
     MAX_NEIGHBOUR_ANGLE_DEG,
@@ -35,7 +29,6 @@ from sim.views.records import (
     views_problem,
 )
 from sim.views.rings import (
-    MIN_RING_DISTANCE,
     fill_at_distance,
     object_bodies,
     object_bounding_sphere,
@@ -47,23 +40,13 @@ from sim.views.rings import (
     ring_sizes,
     ring_views,
 )
-from sim.views.solve import (
-    IK_RESTARTS,
-    PATH_CHECK_STEP,
-    ROLL_CANDIDATES_DEG,
-    check_paths,
-    rolled,
-    solve_views,
-)
+from sim.views.solve import check_paths, rolled, solve_views
 
 __all__ = [
-    "CLEARANCE_M", "ELEVATION_STEP_DEG", "FILL_STEP", "IK_RESTARTS", "MAX_NEIGHBOUR_ANGLE_DEG",
-    "DEFAULT_VIEWS_PER_RING", "MIN_RING_DISTANCE", "MIN_VIEWS", "PATH_CHECK_STEP", "PLAN_FORMAT",
-    "PROBE_IK_RESTARTS",
-    "PROBE_VIEWS", "ROLL_CANDIDATES_DEG", "Ring", "View", "ViewPlan", "ViewPlanConfig",
-    "arm_collisions", "arm_link_bodies", "candidates", "check_paths", "clearance_violations",
-    "fill_at_distance", "object_bodies", "object_bounding_sphere", "order_for_rail",
-    "plan_capture", "plan_from_json", "plan_to_json", "plan_views", "ring_distance",
-    "ring_phases", "ring_size", "ring_sizes", "ring_views", "robot_bodies", "rolled",
-    "solve_views", "views_problem",
+    "DEFAULT_VIEWS_PER_RING", "MAX_NEIGHBOUR_ANGLE_DEG", "MIN_VIEWS", "PLAN_FORMAT", "Ring",
+    "View", "ViewPlan", "ViewPlanConfig", "arm_collisions", "arm_link_bodies", "candidates",
+    "check_paths", "clearance_violations", "fill_at_distance", "object_bodies",
+    "object_bounding_sphere", "order_for_rail", "plan_capture", "plan_from_json", "plan_to_json",
+    "plan_views", "ring_distance", "ring_phases", "ring_size", "ring_sizes", "ring_views",
+    "robot_bodies", "rolled", "solve_views", "views_problem",
 ]

@@ -8,16 +8,7 @@ import numpy as np
 
 from sim import robot
 from sim.scene import body_subtree
-
-#: Clearance (m) the planned arm keeps from everything that is not the robot (object, table,
-#: floor) at every view and at every checked step of the moves between views. The servos follow
-#: the planned joint-space line within a few millimetres (sim.capture feeds each one its own lag
-#: forward), but a plan that merely avoided contact could pass a few millimetres from a thin
-#: part: scraper_truck's configuration B had a move 9.8 mm from the blade that the rail's lag
-#: (0.3 s behind the wrist) turned into a contact, and the capture failed. 1 cm is also a
-#: fifth of the 5 cm a joint step of :data:`PATH_CHECK_STEP` moves the wrist at most, the
-#: margin between two checked configurations.
-CLEARANCE_M = 0.01
+from sim.views.records import ViewPlanConfig
 
 
 def arm_link_bodies(model: mujoco.MjModel, kin: robot.ArmKinematics) -> set[int]:
@@ -56,7 +47,8 @@ def robot_bodies(model: mujoco.MjModel, kin: robot.ArmKinematics) -> set[int]:
 
 
 def clearance_violations(model: mujoco.MjModel, data: mujoco.MjData, links: set[int],
-                         robot_body_ids: set[int], clearance: float = CLEARANCE_M) -> list[str]:
+                         robot_body_ids: set[int],
+                         clearance: float = ViewPlanConfig.clearance_m) -> list[str]:
     """What the arm links come closer to than ``clearance`` at ``data.qpos``.
 
     Runs MuJoCo's collision detection itself (kinematics and collision, with the arm links'
@@ -71,7 +63,7 @@ def clearance_violations(model: mujoco.MjModel, data: mujoco.MjData, links: set[
     robot_body_ids : set of int
         Bodies carried by the rail (:func:`robot_bodies`): near them only contact counts.
     clearance : float
-        Metres.
+        Metres (:attr:`ViewPlanConfig.clearance_m` by default, which says why).
     """
     return ClearanceCheck(model, links, robot_body_ids, clearance)(data)
 
@@ -83,7 +75,7 @@ class ClearanceCheck:
     and strings as the function; the margins are restored after every call."""
 
     def __init__(self, model: mujoco.MjModel, links: set[int], robot_body_ids: set[int],
-                 clearance: float = CLEARANCE_M):
+                 clearance: float = ViewPlanConfig.clearance_m):
         self.model, self.clearance = model, float(clearance)
         self.is_link, self.is_robot = _body_masks(model, links, robot_body_ids)
         self.arm_geom = np.flatnonzero(self.is_link[model.geom_bodyid])

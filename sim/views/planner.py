@@ -39,21 +39,6 @@ from sim.views.solve import check_paths, solve_views
 
 log = logging.getLogger(__name__)
 
-#: Random IK restarts while probing a candidate ring. Most rings the arm reaches are reached from
-#: the neighbouring view's solution at once, so the probe spends little on hopeless rings; the
-#: price is that a ring at the very edge of the workspace may fail its probe and give way to the
-#: next candidate (another distance in the band), never that an unreachable view is planned.
-PROBE_IK_RESTARTS = 2
-#: Views of a candidate ring probed (evenly spread in azimuth) before it is solved in full.
-PROBE_VIEWS = 6
-
-#: Step (share of the image) between the candidate fills of a ring, and (degrees) between its
-#: candidate elevations: 0.05 of fill is 2-4 cm of distance for the bundled objects, 2.5 degrees
-#: a quarter of the 10 degree view spacing.
-FILL_STEP = 0.05
-ELEVATION_STEP_DEG = 2.5
-
-
 
 def candidates(config: ViewPlanConfig, desired_deg: float, radius: float, K, width: int,
                 height: int, lowest_deg: float, highest_deg: float):
@@ -62,17 +47,17 @@ def candidates(config: ViewPlanConfig, desired_deg: float, radius: float, K, wid
     first, the closer of two equally near), then elevations further and further off (towards
     45 degrees first), each with every distance."""
     lo, hi = config.fill_range
-    fills = np.round(np.arange(lo, hi + 1e-9, FILL_STEP), 6).tolist() + [config.fill]
+    fills = np.round(np.arange(lo, hi + 1e-9, config.fill_step), 6).tolist() + [config.fill]
     fills = sorted(set(fills), key=lambda f: (abs(f - config.fill), -f))
     distances = []
     for f in fills:
-        d = ring_distance(radius, K, width, height, f)
+        d = ring_distance(radius, K, width, height, f, config.min_ring_distance)
         if all(abs(d - e) > 1e-3 for e in distances):  # the minimum distance clamps small objects
             distances.append(d)
     shifts = [0.0]
     k = 1
-    while k * ELEVATION_STEP_DEG <= config.max_elevation_shift_deg + 1e-9:
-        step = k * ELEVATION_STEP_DEG
+    while k * config.elevation_step_deg <= config.max_elevation_shift_deg + 1e-9:
+        step = k * config.elevation_step_deg
         shifts += [-step, step] if desired_deg > 45.0 else [step, -step]
         k += 1
     for shift in shifts:
@@ -89,7 +74,7 @@ def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinem
     """Choose every ring so that the arm reaches all its views without a collision, and solve them.
 
     For each ring (full rings, then top rings) the candidates of :func:`candidates` are tried in
-    order: a candidate is probed at :data:`PROBE_VIEWS` evenly spread views (few IK restarts,
+    order: a candidate is probed at ``config.probe_views`` evenly spread views (few IK restarts,
     stopping at the first failure), then solved view by view up to its first unreachable view
     (:func:`solve_views`) and the moves into its views checked (:func:`check_paths`); the first
     whose views are all reachable, and whose moves touch nothing, is taken. If none is, the
@@ -138,10 +123,11 @@ def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinem
             first = len(plan.views)
             for k, v in enumerate(members):
                 v.index = first + k
-            step = max(1, len(members) // PROBE_VIEWS)
+            step = max(1, len(members) // config.probe_views)
             probe = members[::step]
             solve_views(model, data, kin, probe, seed=config.seed, q_start=q_last,
-                        restarts=PROBE_IK_RESTARTS, stop_at_first_failure=True)
+                        restarts=config.probe_ik_restarts, stop_at_first_failure=True,
+                        config=config)
             if not all(v.reachable for v in probe):
                 log.debug("ring %d at %.1f deg, %.3f m: probe failed (%s)", i, el_deg, d,
                           next(v.reason for v in probe if not v.reachable))
@@ -153,9 +139,9 @@ def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinem
             # that already failed (as this did until 2026-11) spent most of a large object's
             # plan (drawer: 42 candidates for its lowest ring)
             solve_views(model, data, kin, members, seed=config.seed, q_start=q_last,
-                        stop_at_first_failure=True)
+                        stop_at_first_failure=True, config=config)
             if all(v.reachable for v in members):
-                check_paths(model, data, kin, members, q_last)
+                check_paths(model, data, kin, members, q_last, config)
                 if all(v.reachable for v in members):
                     best = (len(members), ring, members)
                     break
@@ -165,8 +151,9 @@ def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinem
             # no candidate is whole: the one with the most reachable views, each solved in full
             # (with its second chances from the other side)
             for ring_c, members_c in screened:
-                solve_views(model, data, kin, members_c, seed=config.seed, q_start=q_last)
-                check_paths(model, data, kin, members_c, q_last)
+                solve_views(model, data, kin, members_c, seed=config.seed, q_start=q_last,
+                            config=config)
+                check_paths(model, data, kin, members_c, q_last, config)
                 n_ok = sum(v.reachable for v in members_c)
                 if best is None or n_ok > best[0]:
                     best = (n_ok, ring_c, members_c)
@@ -175,8 +162,9 @@ def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinem
         n_ok, ring, members = best
         if n_ok < 0:
             # no candidate passed its probe: solve the preferred one in full, to report why
-            solve_views(model, data, kin, members, seed=config.seed, q_start=q_last)
-            check_paths(model, data, kin, members, q_last)
+            solve_views(model, data, kin, members, seed=config.seed, q_start=q_last,
+                        config=config)
+            check_paths(model, data, kin, members, q_last, config)
         if any(not v.reachable for v in members):
             log.warning("ring %d (desired %.0f deg): no ring within %.0f deg and fills %s is "
                         "reachable everywhere; %d of %d views unreachable at %.1f deg, %.3f m",

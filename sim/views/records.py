@@ -33,7 +33,9 @@ DEFAULT_VIEWS_PER_RING = 36
 
 @dataclass(frozen=True)
 class ViewPlanConfig:
-    """How the views are laid out."""
+    """How the views are laid out, and the tunables of how the planner reaches them: all of a
+    view plan's settings, so that the plan cache's key (:func:`sim.capture.plan_inputs`, which
+    holds every field) changes with any of them."""
 
     views_per_ring: int = DEFAULT_VIEWS_PER_RING
     """views on each ring of `elevations_deg` (36 keeps neighbours 10 degrees apart)"""
@@ -54,6 +56,53 @@ class ViewPlanConfig:
     seed: int = 0
     """seeds the azimuth of each ring's first view and the IK restarts"""
 
+    # ----- the search for each ring (sim.views.planner): not the layout, how it is reached
+    fill_step: float = 0.05
+    """step (share of the shorter image side) between a ring's candidate fills in
+    `fill_range`: 0.05 is 2-4 cm of camera distance for the bundled objects"""
+    elevation_step_deg: float = 2.5
+    """step (degrees) between a ring's candidate elevations within
+    `max_elevation_shift_deg`: a quarter of the 10 degree view spacing"""
+    probe_views: int = 6
+    """views of a candidate ring probed (evenly spread in azimuth) before it is solved in
+    full: enough to meet the part of a ring that is out of reach, few enough that a hopeless
+    candidate costs little"""
+    probe_ik_restarts: int = 2
+    """random IK restarts per probed view. Most rings the arm reaches are reached from the
+    neighbouring view's solution at once, so the probe spends little on hopeless rings; the
+    price is that a ring at the very edge of the workspace may fail its probe and give way to
+    the next candidate (another distance in the band), never that an unreachable view is
+    planned"""
+
+    # ----- reaching one view (sim.views.solve, sim.views.rings; also the fresh view's)
+    ik_restarts: int = 8
+    """random IK restarts for a view upright (:func:`sim.robot.solve_view_ik`)"""
+    rolled_ik_restarts: int = 2
+    """random IK restarts for each rolled fallback of a view (at most `ik_restarts`): a roll
+    is tried only when the view failed upright, from the previous view's solution"""
+    roll_candidates_deg: tuple[float, ...] = (0.0, 90.0, -90.0, 180.0, 45.0, -45.0, 135.0,
+                                              -135.0)
+    """image rolls (rotation about the optical axis, degrees) tried in this order; the first
+    must be 0 (upright). Any roll shows the same scene, so it is a free choice of the planner"""
+    clearance_m: float = 0.01
+    """clearance (m) the planned arm keeps from everything that is not the robot (object,
+    table, floor) at every view and at every checked step of the moves between views. The
+    servos follow the planned joint-space line within a few millimetres (sim.capture feeds
+    each one its own lag forward), but a plan that merely avoided contact could pass a few
+    millimetres from a thin part: scraper_truck's configuration B had a move 9.8 mm from the
+    blade that the rail's lag (0.3 s behind the wrist) turned into a contact, and the capture
+    failed. 1 cm is also a fifth of the 5 cm a joint step of `path_check_step` moves the
+    wrist at most, the margin between two checked configurations"""
+    path_check_step: float = 0.02
+    """largest joint step (rad) between the configurations checked for contacts along the
+    straight joint-space move from one view to the next (sim.capture drives the servos along
+    that line): 0.02 rad moves a point 1 m from the joint by 2 cm, less than the links'
+    thickness"""
+    min_ring_distance: float = 0.25
+    """smallest camera distance (m) from the object's centre: the wrist camera's near clipping
+    distance (sim.render.ZNEAR, 0.15 m) plus room for the gripper, whatever the object's
+    size"""
+
     def __post_init__(self):
         problem = views_problem(self.views_per_ring, "views_per_ring (--views)")
         if problem:
@@ -72,6 +121,21 @@ class ViewPlanConfig:
                 raise ValueError(f"ring elevations must lie in [-80, 85] degrees, got {e}")
         if not self.elevations_deg and not self.top_elevations_deg:
             raise ValueError("give at least one ring elevation")
+        for name in ("fill_step", "elevation_step_deg", "clearance_m", "path_check_step",
+                     "min_ring_distance"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"ViewPlanConfig.{name} must be a positive number, got {value}")
+        for name, least in (("probe_views", 1), ("probe_ik_restarts", 0), ("ik_restarts", 0),
+                            ("rolled_ik_restarts", 0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < least:
+                raise ValueError(f"ViewPlanConfig.{name} must be a whole number of at least "
+                                 f"{least}, got {value!r}")
+        rolls = self.roll_candidates_deg
+        if not rolls or rolls[0] != 0.0:
+            raise ValueError(f"ViewPlanConfig.roll_candidates_deg must start with 0 (the view "
+                             f"upright), got {rolls}")
 
 
 @dataclass

@@ -10,10 +10,6 @@ from sim import robot
 from sim.scene import body_subtree
 from sim.views.records import Ring, View, ViewPlanConfig
 
-#: Smallest ring radius (m): the wrist camera's near clipping distance (sim.render.ZNEAR, 0.15 m)
-#: plus room for the gripper, whatever the object's size.
-MIN_RING_DISTANCE = 0.25
-
 
 def object_bodies(model: mujoco.MjModel, root: str = "object") -> list[int]:
     """Body ids of the object: ``root`` and every body below it, in model order."""
@@ -67,12 +63,13 @@ def _half_fov(K: np.ndarray, width: int, height: int) -> float:
     return float(min(np.arctan(0.5 * width / K[0, 0]), np.arctan(0.5 * height / K[1, 1])))
 
 
-def ring_distance(radius: float, K: np.ndarray, width: int, height: int, fill: float) -> float:
+def ring_distance(radius: float, K: np.ndarray, width: int, height: int, fill: float,
+                  min_distance: float = ViewPlanConfig.min_ring_distance) -> float:
     """Camera distance at which a sphere of ``radius`` spans ``fill`` of the shorter image side
-    (at least :data:`MIN_RING_DISTANCE`)."""
+    (at least ``min_distance``, m: :attr:`ViewPlanConfig.min_ring_distance` says why)."""
     # the sphere's silhouette has angular radius asin(r / d)
     d = radius / np.sin(np.arctan(fill * np.tan(_half_fov(K, width, height))))
-    return float(max(d, MIN_RING_DISTANCE))
+    return float(max(d, min_distance))
 
 
 def fill_at_distance(radius: float, K: np.ndarray, width: int, height: int,

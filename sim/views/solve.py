@@ -9,22 +9,10 @@ import mujoco
 import numpy as np
 
 from sim import robot
-from sim.views.clearance import CLEARANCE_M, ClearanceCheck, arm_link_bodies, robot_bodies
-from sim.views.records import View
+from sim.views.clearance import ClearanceCheck, arm_link_bodies, robot_bodies
+from sim.views.records import View, ViewPlanConfig
 
 log = logging.getLogger(__name__)
-
-#: Image rolls (rotation about the optical axis, degrees) tried in this order when the arm cannot
-#: reach a view upright: any roll shows the same scene, so it is a free choice of the planner.
-ROLL_CANDIDATES_DEG = (0.0, 90.0, -90.0, 180.0, 45.0, -45.0, 135.0, -135.0)
-
-#: Random IK restarts for the upright view (sim.robot.solve_view_ik); rolled fallbacks get 2.
-IK_RESTARTS = 8
-#: Largest joint step (rad) between the configurations checked for contacts along the straight
-#: joint-space move from one view to the next (sim.capture drives the servos along that line):
-#: 0.02 rad moves a point 1 m from the joint by 2 cm, less than the links' thickness.
-PATH_CHECK_STEP = 0.02
-
 
 def rolled(T_world_camera: np.ndarray, roll_deg: float) -> np.ndarray:
     """The same camera turned by ``roll_deg`` about its optical axis (OpenCV z)."""
@@ -36,7 +24,7 @@ def rolled(T_world_camera: np.ndarray, roll_deg: float) -> np.ndarray:
 
 
 def _solve_one(model, data, kin, view: View, q_prev, *, seed: int, restarts: int,
-               rolls, check: ClearanceCheck, qidx: np.ndarray,
+               rolled_restarts: int, rolls, check: ClearanceCheck, qidx: np.ndarray,
                saved: np.ndarray) -> list[str]:
     """Try to reach ``view`` (upright first, then rolled), starting from ``q_prev`` and from the
     arm's default seed. Fills ``view.q`` (and its roll and pose) on success; returns the reasons
@@ -49,7 +37,8 @@ def _solve_one(model, data, kin, view: View, q_prev, *, seed: int, restarts: int
         starts = [q_prev, None] if q_prev is not None else [None]
         for q0 in starts if roll == 0.0 else starts[:1]:
             res = robot.solve_view_ik(kin, T, q0, seed=seed,
-                                      restarts=restarts if roll == 0.0 else min(2, restarts))
+                                      restarts=restarts if roll == 0.0
+                                      else min(rolled_restarts, restarts))
             if not res.success:
                 reasons.append(f"roll {roll:+.0f}: IK {res.position_error * 1e3:.1f} mm "
                                f"{np.rad2deg(res.rotation_error):.2f} deg off")
@@ -60,7 +49,7 @@ def _solve_one(model, data, kin, view: View, q_prev, *, seed: int, restarts: int
             hits = check(data)
             if hits:
                 reasons.append(f"roll {roll:+.0f}: too close (clearance "
-                               f"{CLEARANCE_M * 1e3:.0f} mm, contact within the arm): "
+                               f"{check.clearance * 1e3:.0f} mm, contact within the arm): "
                                f"{', '.join(hits[:3])}")
                 continue
             view.q, view.roll_deg, view.reason = q.copy(), roll, ""
@@ -71,8 +60,8 @@ def _solve_one(model, data, kin, view: View, q_prev, *, seed: int, restarts: int
 
 def solve_views(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinematics,
                 views: list[View], *, seed: int = 0, progress=None, q_start=None,
-                restarts: int = IK_RESTARTS, rolls=ROLL_CANDIDATES_DEG,
-                stop_at_first_failure: bool = False) -> None:
+                restarts: int | None = None, rolls=None, stop_at_first_failure: bool = False,
+                config: ViewPlanConfig = ViewPlanConfig()) -> None:
     """Fill in ``q`` (or ``reason``) of every view: IK with joint limits, then a collision check.
 
     Views are solved in their order, each IK started at the previous view's solution (the rail
@@ -93,20 +82,25 @@ def solve_views(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinema
         ``update(1)`` per view.
     q_start : (n,) float, optional
         Solution of the view before the first (e.g. the previous ring's last view).
-    restarts : int
-        Random IK restarts of the upright view.
-    rolls : sequence of float
-        Image rolls (degrees) tried in order.
+    restarts : int, optional
+        Random IK restarts of the upright view (default ``config.ik_restarts``).
+    rolls : sequence of float, optional
+        Image rolls (degrees) tried in order (default ``config.roll_candidates_deg``).
     stop_at_first_failure : bool
         Leave the remaining views unsolved (``q`` None, reason ``"not tried"``) after the first
         unreachable one (to probe candidate rings quickly).
+    config : ViewPlanConfig
+        Its tunables of reaching a view: IK restarts (upright and rolled), the rolls and the
+        clearance; its ring layout is not read.
     """
     qidx = robot.qpos_indices(model, kin)
     links = arm_link_bodies(model, kin)
     saved = data.qpos.copy()
-    kw = dict(restarts=restarts, rolls=tuple(rolls),
-              check=ClearanceCheck(model, links, robot_bodies(model, kin)), qidx=qidx,
-              saved=saved)
+    kw = dict(restarts=config.ik_restarts if restarts is None else restarts,
+              rolled_restarts=config.rolled_ik_restarts,
+              rolls=tuple(config.roll_candidates_deg if rolls is None else rolls),
+              check=ClearanceCheck(model, links, robot_bodies(model, kin), config.clearance_m),
+              qidx=qidx, saved=saved)
     q_prev = None if q_start is None else np.asarray(q_start, dtype=float)
     failed = False
     for view in views:
@@ -139,9 +133,11 @@ def solve_views(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinema
 
 
 def check_paths(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinematics,
-                views: list[View], q_start=None) -> None:
+                views: list[View], q_start=None,
+                config: ViewPlanConfig = ViewPlanConfig()) -> None:
     """Check the straight joint-space move into every reachable view: the arm keeps
-    :data:`CLEARANCE_M` from everything outside the robot and does not touch itself.
+    ``config.clearance_m`` from everything outside the robot and does not touch itself, at
+    configurations at most ``config.path_check_step`` apart along the move.
 
     The arm travels from ``q_start`` (if given) to the first reachable view, then from each
     reachable view to the next, as :mod:`sim.capture` drives it. A view whose incoming move
@@ -151,14 +147,14 @@ def check_paths(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinema
     """
     qidx = robot.qpos_indices(model, kin)
     links = arm_link_bodies(model, kin)
-    check = ClearanceCheck(model, links, robot_bodies(model, kin))
+    check = ClearanceCheck(model, links, robot_bodies(model, kin), config.clearance_m)
     saved = data.qpos.copy()
     q_prev = None if q_start is None else np.asarray(q_start, dtype=float)
     for view in views:
         if not view.reachable:
             continue
         if q_prev is not None:
-            n = max(1, int(np.ceil(np.max(np.abs(view.q - q_prev)) / PATH_CHECK_STEP)))
+            n = max(1, int(np.ceil(np.max(np.abs(view.q - q_prev)) / config.path_check_step)))
             for t in np.arange(1, n) / n:
                 data.qpos[:] = saved
                 data.qpos[qidx] = q_prev + t * (view.q - q_prev)
@@ -166,7 +162,7 @@ def check_paths(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinema
                 if hits:
                     view.q = None
                     view.reason = (f"the move from the previous view comes closer than "
-                                   f"{CLEARANCE_M * 1e3:.0f} mm to {', '.join(hits[:3])} "
+                                   f"{check.clearance * 1e3:.0f} mm to {', '.join(hits[:3])} "
                                    f"({t:.0%} of the way)")
                     break
         if view.reachable:
