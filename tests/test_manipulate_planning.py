@@ -93,6 +93,20 @@ def test_candidates_clear_of_the_fixed_parts_come_first():
     assert [c.point[0] for c in ranked] == [0.12, 0.20, 0.25]
 
 
+def test_a_hidden_candidate_at_a_seam_comes_after_the_clear_ones():
+    """Hidden candidates come first, but not one a few millimetres from a fixed part: there the
+    segmentation is least sure (the imported chest's lid was grasped on its front edge, 4.9 mm
+    above the carcass's points, and the gripper closed on the carcass)."""
+    est = JointEstimate("revolute", [0.0, 0.0, 1.0], [0.0, 0.0, 0.0])
+    up = np.array([1.0, 0.0, 0.0])
+    seam = GraspCandidate(np.array([0.25, 0.0, 0.0]), up, hidden=True, clearance=0.005)
+    hidden = GraspCandidate(np.array([0.10, 0.0, 0.0]), up, hidden=True, clearance=0.01)
+    seen = GraspCandidate(np.array([0.20, 0.0, 0.0]), up, clearance=0.05)
+    ranked = P.rank([seam, seen, hidden], est, prefer_hidden=True)
+    assert [c.point[0] for c in ranked] == [0.10, 0.20, 0.25]
+    assert [c.point[0] for c in P.rank([seam, seen], est, prefer_hidden=True)] == [0.20, 0.25]
+
+
 def test_tries_after_a_failure_are_spread_along_the_link():
     n = np.array([0.0, 0.0, 1.0])
     edge = [GraspCandidate(np.array([0.006 * k, 0.0, 0.0]), n) for k in range(20)]
