@@ -84,6 +84,15 @@ class AssignConfig:
     depth_tolerance: float = 0.01
     """Relative depth band (1%, the dense stage's own consistency tolerance) within which ``q``
     counts as on the observed surface; the band is at least ``spacing_factor`` spacings."""
+    violation_window: int = 3
+    """A free-space violation needs ``q`` in front of every surface observed within this many
+    z-buffer cells around its own (odd; 1: its cell alone). The dense points of a wall have
+    holes wider than the one cell the z-buffer closes, and a ray through one of them meets the
+    room behind: "seen through". Drawer's drawer, pulled out in B, has its floor's back part
+    still in the carcass; moved back to A by the drawer's motion it lies inside the closed
+    drawer, where A's cameras saw through holes in the drawer front and carcass walls, and
+    1216 of its 9084 points in B went to the carcass (B's accuracy 0.961; 0.991 with a window
+    of 3 cells, 0.987 with 9)."""
     violations_saturate: int = 3
     """Free-space violations (cameras) at which the violation cost is full."""
     cost_no_fit: float = 1.0
@@ -186,9 +195,10 @@ def seen_by(dense, views: list[CameraView]) -> np.ndarray | None:
 class _Surface:
     """The dense surface of one configuration as seen by its cameras (z-buffer per view)."""
 
-    def __init__(self, views: list[CameraView], points: np.ndarray, cell: int):
+    def __init__(self, views: list[CameraView], points: np.ndarray, cell: int, window: int = 1):
         self.views, self.cell = views, cell
         self.zbuf = []
+        self.znear = []
         for v in views:
             h, w = v.image.shape[0] // cell, v.image.shape[1] // cell
             u, vv, z = v.project(points)
@@ -197,6 +207,8 @@ class _Surface:
             np.minimum.at(zb, (j[ok], i[ok]), z[ok])
             # close one-cell holes between points (never pushes a surface back)
             self.zbuf.append(np.where(np.isfinite(zb), zb, minimum_filter(zb, 3)))
+            self.znear.append(minimum_filter(self.zbuf[-1], window) if window > 1
+                              else self.zbuf[-1])
 
     def _cells(self, u, v, z, w, h):
         with np.errstate(invalid="ignore"):
@@ -206,20 +218,22 @@ class _Surface:
         return np.where(ok, i, 0).astype(np.int64), np.where(ok, j, 0).astype(np.int64), ok
 
     def status(self, X: np.ndarray, rel: float, floor: float):
-        """Per view and point: visible (on the observed surface) and violating (in front of it).
+        """Per view and point: visible (on the observed surface) and violating (in front of it
+        and of every surface observed within :attr:`AssignConfig.violation_window` cells).
 
         Returns (visible, violating), both (views, n) bool.
         """
         vis = np.zeros((len(self.views), len(X)), bool)
         bad = np.zeros_like(vis)
-        for c, (v, zb) in enumerate(zip(self.views, self.zbuf, strict=True)):
+        for c, (v, zb, zn) in enumerate(zip(self.views, self.zbuf, self.znear, strict=True)):
             u, vv, z = v.project(X)
             i, j, ok = self._cells(u, vv, z, zb.shape[1], zb.shape[0])
             zz = np.where(ok, zb[j, i], np.inf)
             known = ok & np.isfinite(zz)
             tol = np.maximum(rel * np.where(known, zz, 0.0), floor)
             vis[c] = known & (np.abs(z - zz) <= tol)
-            bad[c] = known & (z < zz - tol)
+            near = np.where(ok, zn[j, i], np.inf)
+            bad[c] = known & (z < near - np.maximum(rel * np.where(known, near, 0.0), floor))
         return vis, bad
 
     def best_view(self, visible: np.ndarray, X: np.ndarray, N: np.ndarray) -> np.ndarray:
@@ -490,6 +504,9 @@ def assign_dense_to_links(dense_a, dense_b, points_a, points_b, segmentation, *,
     """
     if config.passes < 1:
         raise ValueError(f"AssignConfig.passes must be >= 1, got {config.passes}")
+    if config.violation_window < 1 or config.violation_window % 2 == 0:
+        raise ValueError("AssignConfig.violation_window must be an odd number of cells >= 1, "
+                         f"got {config.violation_window}")
     labels = np.asarray(segmentation.labels)
     Ts = list(segmentation.transforms)
     inv = [T.inverse() for T in Ts]
@@ -499,8 +516,9 @@ def assign_dense_to_links(dense_a, dense_b, points_a, points_b, segmentation, *,
     if views_a and views_b:
         occ_a = dense_a.points if occluders_a is None else occluders_a
         occ_b = dense_b.points if occluders_b is None else occluders_b
-        surf_a, surf_b = side_by_side(lambda: _Surface(views_a, occ_a, config.zbuffer_cell),
-                                      lambda: _Surface(views_b, occ_b, config.zbuffer_cell))
+        surf_a, surf_b = side_by_side(
+            lambda: _Surface(views_a, occ_a, config.zbuffer_cell, config.violation_window),
+            lambda: _Surface(views_b, occ_b, config.zbuffer_cell, config.violation_window))
     seen_a = seen_b = None
     if views_a and views_b:
         seen_a, seen_b = seen_by(dense_a, views_a), seen_by(dense_b, views_b)
