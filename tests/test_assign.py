@@ -205,6 +205,32 @@ def test_free_space_rejects_a_point_seen_through():
     assert vis[0].tolist() == [False, True, False]
 
 
+def test_free_space_is_not_seen_through_a_hole_in_a_wall():
+    """A wall whose dense points have a hole a few cells wide, the room far behind it: a point
+    just behind the wall, in line with the hole, was not seen through (the wall's points stop
+    short of the hole, not the wall); with a one-cell window it was, with the default not. A
+    point in front of the wall stays a violation."""
+    T = _camera(0.0, 0.0)
+    K = np.array([[F, 0, W / 2], [0, F, H / 2], [0, 0, 1]])
+    view = CameraView(K, T, np.zeros((H, W), np.float32))
+    rng = np.random.default_rng(2)
+    wall = np.c_[rng.uniform(-0.2, 0.2, 40000), rng.uniform(-0.2, 0.2, 40000), np.zeros(40000)]
+    u, v, _ = view.project(wall)
+    hole = (np.abs(u - W / 2) < 6) & (np.abs(v - H / 2) < 6)  # 12 px: three 4 px cells
+    room = np.c_[rng.uniform(-0.5, 0.5, 40000), rng.uniform(-0.5, 0.5, 40000),
+                 np.full(40000, -0.5)]
+    occluders = np.r_[wall[~hole], room]
+    z0 = view.project(np.zeros((1, 3)))[2][0]
+    behind = np.array([[0.0, 0.0, -0.05]])
+    front = np.array([[0.0, 0.0, 0.05]])
+    one = _Surface([view], occluders, cell=4, window=1)
+    three = _Surface([view], occluders, cell=4, window=AssignConfig().violation_window)
+    assert z0 > 0 and hole.sum() > 0
+    assert one.status(behind, 0.01, 0.004)[1][0, 0]  # seen through the hole
+    assert not three.status(behind, 0.01, 0.004)[1][0, 0]
+    assert three.status(front, 0.01, 0.004)[1][0, 0]
+
+
 def test_free_space_label_for_a_hidden_counterpart():
     """Points of B whose counterpart is hidden in A (no geometric fit either way): the hypothesis
     that puts them where A's camera saw empty table is violated; the other (hidden under the base)
