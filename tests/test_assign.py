@@ -19,6 +19,7 @@ from artrecon.assign import (
     CameraView,
     _Evidence,
     _graph,
+    _matches_along_surface,
     _Surface,
     assign_dense_to_links,
     label_points,
@@ -190,6 +191,32 @@ def test_seen_by_matches_views_to_the_visibility_columns_by_name():
     assert seen_by(dense, views).tolist() == [[False, True, False], [True, False, False],
                                               [True, True, False]]
     assert seen_by(dense, [replace(views[0], name=None)]) is None
+
+
+def test_match_prior_follows_the_surface_not_a_straight_line():
+    """A drawer's floor (link 1, z = 0) under its carcass's top (link 0, 3 cm above, 12 cm
+    long); the floor's only matches are on its far end, 15 cm away, the top's right above. In
+    a straight line the floor under the top is nearest to the top's matches; along the surface
+    (the points' graph: the two plates never touch) it is nearest to the floor's own."""
+    s = 0.004
+    xs = np.arange(0.0, 0.30, s)
+    ys = np.arange(-0.05, 0.05, s)
+    floor = np.array([[x, y, 0.0] for x in xs for y in ys])
+    top = np.array([[x, y, 0.03] for x in xs[xs < 0.12] for y in ys])
+    X = np.r_[floor, top]
+    matches = np.array([[0.06, 0.0, 0.03], [0.28, 0.0, 0.0], [0.29, 0.02, 0.0]])
+    labels = np.array([0, 1, 1])
+    d, link = _matches_along_surface(X, _graph(X, 8, 2.5), matches, labels, 2, np.inf)
+    under = np.arange(len(X)) < len(floor)
+    under &= X[:, 0] < 0.12
+    assert (link[under] == 1).all()
+    assert (link[len(floor):] == 0).all()
+    far = X[under][:, 0].min()
+    assert d[under].max() >= 0.28 - far - 1e-9  # at least the straight run along the floor
+    # beyond the limit: no match
+    d, link = _matches_along_surface(X, _graph(X, 8, 2.5), matches, labels, 2, 0.05)
+    assert np.isinf(d[under & (X[:, 0] < 0.1)]).all()
+    assert (link[under & (X[:, 0] < 0.1)] == -1).all()
 
 
 def test_free_space_rejects_a_point_seen_through():
