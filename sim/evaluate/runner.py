@@ -226,7 +226,7 @@ def _manipulations(scene, registered, result, q_start, keys, ev, cache_root,
         reference = None
         if row is not None and not run.get("error"):
             reference, _, _ = manipulation_reference_stage(scene, row["name"], run, q_start,
-                                                           cache_root, scene_hash, ev.seed)
+                                                           cache_root, scene_hash)
         runs.append(score_manipulation(scene, j.name, run, row, reference))
     return summarise_manipulations(runs)
 
