@@ -243,6 +243,11 @@ def _plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate,
         if not ok:
             reasons.append(f"roll {roll}: approach line not followable")
             continue
+        hits, at = pw.approach_contacts(approach, cand.point, moving_links, cand.normal)
+        if hits:
+            reasons.append(f"roll {roll}: approach to the grasp meets {hits[0]} at "
+                           f"{100 * at:.0f}% of the way")
+            continue
         q_path, p_path, stop = motion_path(kin, cfg, est, amount, T_g, q, s)
         if stop is not None:
             reasons.append(f"roll {roll}: motion leaves the workspace or joint limits at "
