@@ -429,6 +429,7 @@ def score_manipulation(scene: Scene, model_joint: str, run: dict, row: dict | No
     out.update({key: run[key] for key in ("grasp_point", "grasp_normal", "grasp_hidden",
                                           "grasp_visibility", "grasp_body", "grasp_lost",
                                           "grasp_lost_at", "planned_in", "arm_contacts")})
+    out.update(grasp_roll_deg=run.get("grasp_roll_deg"), candidates=run.get("candidates"))
     out.update(peak_force_n=run["peak_force"], rms_force_n=run["rms_force"],
                peak_torque_nm=run["peak_torque"], grip_limits=run["grip_limits"],
                tracking_max_deg=run["tracking_max_deg"],
