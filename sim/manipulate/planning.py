@@ -104,10 +104,20 @@ def plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, 
     rounds a sharp edge, and cabinet_door_only's door handle grasped at its corner with the
     fingers along it, 5 mm out of the model there, lost the grasp at 1% of the turn, 8.4 N and
     3.0 N m, where a roll with the fingers either side of the handle turned it at 3 N); then the
-    shortest travel. The plan, or None and why."""
+    shortest travel. The IK starts from ``q_start``; when no roll passes from there, it starts
+    again from the arm's home configuration (:attr:`PlanningWorld.q_home`: another branch of
+    the arm's IK, whose travel from ``q_start`` is checked like any other). The plan, or None
+    and why."""
     rolls = pw.config.rolls_deg if rolls_deg is None else tuple(rolls_deg)
+    q_start = np.asarray(q_start, float)
     with _limits_narrowed(pw.kin, pw.config.joint_limit_margin):
-        return _plan_candidate(pw, cand, est, amount, q_start, seed, moving_links, rolls)
+        plan, why = _plan_candidate(pw, cand, est, amount, q_start, q_start, seed,
+                                    moving_links, rolls)
+        if plan is not None or np.allclose(pw.q_home, q_start):
+            return plan, why
+        home, why_home = _plan_candidate(pw, cand, est, amount, q_start, pw.q_home, seed,
+                                         moving_links, rolls)
+    return (home, "") if home is not None else (None, f"{why} | from home: {why_home}")
 
 
 def motion_waypoints(est: JointEstimate, amount: float, cfg: PlanningConfig) -> np.ndarray:
@@ -200,7 +210,7 @@ def _limits_narrowed(kin, margin: float):
 
 
 def _plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, amount: float,
-                    q_start: np.ndarray, seed: int, moving_links, rolls
+                    q_start: np.ndarray, q_seed: np.ndarray, seed: int, moving_links, rolls
                     ) -> tuple[Plan | None, str]:
     kin, cfg = pw.kin, pw.config
     s = motion_waypoints(est, amount, cfg)
@@ -208,7 +218,7 @@ def _plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate,
     best = None
     # cheap first test: can the grasp frame's origin get there at all (any orientation)?
     reach = kin.solve_ik(grasp_frame(cand.point, cand.normal, 0.0, cfg.grasp_standoff), "grasp",
-                         q_start, position_only=True, restarts=2, seed=seed)
+                         q_seed, position_only=True, restarts=2, seed=seed)
     if not reach.success:
         return None, (f"out of reach: the grasp frame gets no closer than "
                       f"{1e3 * reach.position_error:.0f} mm")

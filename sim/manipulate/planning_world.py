@@ -56,6 +56,8 @@ class PlanningWorld:
         mujoco.mj_forward(model, self.data)
         self.kin = robot.load_arm_kinematics(model)
         self.qidx = robot.qpos_indices(model, self.kin)
+        self.q_home = np.array(world.qpos_start[self.qidx], float)
+        """the arm's home configuration (its keyframe): a second start of the plan's IK"""
         self.arm_links = views.arm_link_bodies(model, self.kin)
         arm = robot.arm_spec(model)
         self.flange_body = model.body(arm.prefix + arm.flange_body).id
