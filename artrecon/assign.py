@@ -59,7 +59,7 @@ from functools import partial
 
 import cv2
 import numpy as np
-from scipy.ndimage import map_coordinates, maximum_filter, minimum_filter
+from scipy.ndimage import map_coordinates, minimum_filter
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
@@ -85,18 +85,15 @@ class AssignConfig:
     depth_tolerance: float = 0.01
     """Relative depth band (1%, the dense stage's own consistency tolerance) within which ``q``
     counts as on the observed surface; the band is at least ``spacing_factor`` spacings."""
-    violation_window: int = 5
-    """Free space is judged against the z-buffer with its holes narrower than this many cells
-    filled by the surface around them (odd; 1: as observed). The dense points of a wall have
+    violation_window: int = 3
+    """A free-space violation needs ``q`` in front of every surface observed within this many
+    z-buffer cells around its own (odd; 1: its cell alone). The dense points of a wall have
     holes wider than the one cell the z-buffer closes, and a ray through one of them meets the
     room behind: "seen through". Drawer's drawer, pulled out in B, has its floor's back part
     still in the carcass; moved back to A by the drawer's motion it lies inside the closed
     drawer, where A's cameras saw through holes in the drawer front and carcass walls, and
-    1216 of its 9084 points in B went to the carcass (B's accuracy 0.961; 0.992 with holes of
-    up to 5 cells filled, 0.980 up to 3). The holes are filled by a grey opening, which leaves
-    outlines in place: the nearest depth within the window (as a plain minimum would: it
-    widened every outline by the window, and pliers' thin handles lost the violations along
-    their edges, B 0.982 -> 0.978), then the farthest of those."""
+    1216 of its 9084 points in B went to the carcass (B's accuracy 0.961; 0.991 with a window
+    of 3 cells, 0.987 with 9)."""
     violations_saturate: int = 3
     """Free-space violations (cameras) at which the violation cost is full."""
     cost_no_fit: float = 1.0
@@ -211,11 +208,8 @@ class _Surface:
             np.minimum.at(zb, (j[ok], i[ok]), z[ok])
             # close one-cell holes between points (never pushes a surface back)
             self.zbuf.append(np.where(np.isfinite(zb), zb, minimum_filter(zb, 3)))
-            # holes narrower than the window filled with the surface around them (a grey
-            # opening: the nearest depth around, then the farthest of those, so that an
-            # outline keeps its place instead of growing by the window as a minimum would)
-            self.znear.append(maximum_filter(minimum_filter(self.zbuf[-1], window), window)
-                              if window > 1 else self.zbuf[-1])
+            self.znear.append(minimum_filter(self.zbuf[-1], window) if window > 1
+                              else self.zbuf[-1])
 
     def _cells(self, u, v, z, w, h):
         with np.errstate(invalid="ignore"):
@@ -225,8 +219,8 @@ class _Surface:
         return np.where(ok, i, 0).astype(np.int64), np.where(ok, j, 0).astype(np.int64), ok
 
     def status(self, X: np.ndarray, rel: float, floor: float):
-        """Per view and point: visible (on the observed surface) and violating (in front of it,
-        its holes narrower than :attr:`AssignConfig.violation_window` cells filled).
+        """Per view and point: visible (on the observed surface) and violating (in front of it
+        and of every surface observed within :attr:`AssignConfig.violation_window` cells).
 
         Returns (visible, violating), both (views, n) bool.
         """
