@@ -127,6 +127,12 @@ class AssignConfig:
     patch_step_px: float = 1.5
     """... this many pixels apart in the source image."""
 
+    def __post_init__(self) -> None:
+        if self.violation_window < 1 or self.violation_window % 2 == 0:
+            raise ValueError("AssignConfig.violation_window must be an odd number of z-buffer "
+                             f"cells >= 1 (a window centred on the cell), got "
+                             f"{self.violation_window}")
+
 
 @dataclass
 class CameraView:
@@ -547,9 +553,6 @@ def assign_dense_to_links(dense_a, dense_b, points_a, points_b, segmentation, *,
     """
     if config.passes < 1:
         raise ValueError(f"AssignConfig.passes must be >= 1, got {config.passes}")
-    if config.violation_window < 1 or config.violation_window % 2 == 0:
-        raise ValueError("AssignConfig.violation_window must be an odd number of cells >= 1, "
-                         f"got {config.violation_window}")
     labels = np.asarray(segmentation.labels)
     Ts = list(segmentation.transforms)
     inv = [T.inverse() for T in Ts]

@@ -456,3 +456,9 @@ def test_table_does_not_pull_a_link_lying_on_it_to_the_base():
     assert (ev.static_edges[truth == 1] > 0).mean() > 0.9 and not ev.like_base[1].any()
     ev.like_base[:] = True
     assert (ev.label()[truth == 1] == 0).mean() > 0.9
+
+
+@pytest.mark.parametrize("window", [0, 2, 4, -3])
+def test_a_free_space_window_not_centred_on_its_cell_is_refused(window):
+    with pytest.raises(ValueError, match="violation_window must be an odd number"):
+        AssignConfig(violation_window=window)
