@@ -4,7 +4,7 @@
 (:mod:`artrecon.model_stage`) and the robustness harness (``sim.perturb.resegment``, which
 re-runs them on corrupted matches) both call it::
 
-    check_motion (nothing moved? one rigid body?)            artrecon.diagnosis
+    check_motion (nothing moved? one body? other object?)    artrecon.diagnosis
     -> segment_links -> merge_equivalent_links               artrecon.segment, .link_motions
     -> anchor_base -> add_guided_matches -> robust_refit     artrecon.link_motions
     -> dense points the table is seen through dropped        artrecon.freespace
@@ -134,8 +134,15 @@ def _articulate(points_a, points_b, background_a, background_b, dense_a, dense_b
                 occluders_b, candidates, covariances=None) -> Articulation:
     timings: dict[str, float] = {}
     t = time.perf_counter()
-    # nothing moved, or the whole object did: said first and plainly (NoMotionError, ...)
-    check_motion(points_a, points_b, background_a, background_b, config.segmentation, seed)
+    # nothing moved, or the whole object did: said first and plainly (NoMotionError, ...), unless
+    # so few of the object's points matched that B shows another object (the candidates are the
+    # object's points the matching left out)
+    object_points = None
+    if candidates is not None:
+        object_points = (len(points_a) + len(candidates[0].ids),
+                         len(points_a) + len(candidates[1].ids))
+    check_motion(points_a, points_b, background_a, background_b, config.segmentation, seed,
+                 object_points=object_points)
     try:
         seg = segment_links(points_a, points_b, config.segmentation, seed=seed)
         seg = merge_equivalent_links(points_a, points_b, seg)

@@ -173,6 +173,7 @@ RANGES: dict[str, Range | Choice] = {
     "assign.spacing_factor": Range(0, 1000, "point spacings", **_OPEN),
     "assign.zbuffer_cell": Range(1, 256, "pixels"),
     "assign.depth_tolerance": Range(0, 0.5, "a fraction of the depth", **_OPEN),
+    "assign.violation_window": Range(1, 63, "z-buffer cells, odd"),
     "assign.violations_saturate": Range(1, 10_000, "cameras"),
     "assign.cost_no_fit": Range(0, 1000, "a cost"),
     "assign.cost_violation": Range(0, 1000, "a cost"),

@@ -19,6 +19,7 @@ from artrecon.assign import (
     CameraView,
     _Evidence,
     _graph,
+    _matches_along_surface,
     _Surface,
     assign_dense_to_links,
     label_points,
@@ -192,6 +193,32 @@ def test_seen_by_matches_views_to_the_visibility_columns_by_name():
     assert seen_by(dense, [replace(views[0], name=None)]) is None
 
 
+def test_match_prior_follows_the_surface_not_a_straight_line():
+    """A drawer's floor (link 1, z = 0) under its carcass's top (link 0, 3 cm above, 12 cm
+    long); the floor's only matches are on its far end, 15 cm away, the top's right above. In
+    a straight line the floor under the top is nearest to the top's matches; along the surface
+    (the points' graph: the two plates never touch) it is nearest to the floor's own."""
+    s = 0.004
+    xs = np.arange(0.0, 0.30, s)
+    ys = np.arange(-0.05, 0.05, s)
+    floor = np.array([[x, y, 0.0] for x in xs for y in ys])
+    top = np.array([[x, y, 0.03] for x in xs[xs < 0.12] for y in ys])
+    X = np.r_[floor, top]
+    matches = np.array([[0.06, 0.0, 0.03], [0.28, 0.0, 0.0], [0.29, 0.02, 0.0]])
+    labels = np.array([0, 1, 1])
+    d, link = _matches_along_surface(X, _graph(X, 8, 2.5), matches, labels, 2, np.inf)
+    under = np.arange(len(X)) < len(floor)
+    under &= X[:, 0] < 0.12
+    assert (link[under] == 1).all()
+    assert (link[len(floor):] == 0).all()
+    far = X[under][:, 0].min()
+    assert d[under].max() >= 0.28 - far - 1e-9  # at least the straight run along the floor
+    # beyond the limit: no match
+    d, link = _matches_along_surface(X, _graph(X, 8, 2.5), matches, labels, 2, 0.05)
+    assert np.isinf(d[under & (X[:, 0] < 0.1)]).all()
+    assert (link[under & (X[:, 0] < 0.1)] == -1).all()
+
+
 def test_free_space_rejects_a_point_seen_through():
     """A point in front of the observed surface is a violation; on it, visible; behind, neither."""
     T = _camera(0.0, 0.0)
@@ -203,6 +230,32 @@ def test_free_space_rejects_a_point_seen_through():
     vis, bad = surf.status(X, rel=0.01, floor=0.004)
     assert bad[0].tolist() == [True, False, False]
     assert vis[0].tolist() == [False, True, False]
+
+
+def test_free_space_is_not_seen_through_a_hole_in_a_wall():
+    """A wall whose dense points have a hole a few cells wide, the room far behind it: a point
+    just behind the wall, in line with the hole, was not seen through (the wall's points stop
+    short of the hole, not the wall); with a one-cell window it was, with the default not. A
+    point in front of the wall stays a violation."""
+    T = _camera(0.0, 0.0)
+    K = np.array([[F, 0, W / 2], [0, F, H / 2], [0, 0, 1]])
+    view = CameraView(K, T, np.zeros((H, W), np.float32))
+    rng = np.random.default_rng(2)
+    wall = np.c_[rng.uniform(-0.2, 0.2, 40000), rng.uniform(-0.2, 0.2, 40000), np.zeros(40000)]
+    u, v, _ = view.project(wall)
+    hole = (np.abs(u - W / 2) < 6) & (np.abs(v - H / 2) < 6)  # 12 px: three 4 px cells
+    room = np.c_[rng.uniform(-0.5, 0.5, 40000), rng.uniform(-0.5, 0.5, 40000),
+                 np.full(40000, -0.5)]
+    occluders = np.r_[wall[~hole], room]
+    z0 = view.project(np.zeros((1, 3)))[2][0]
+    behind = np.array([[0.0, 0.0, -0.05]])
+    front = np.array([[0.0, 0.0, 0.05]])
+    one = _Surface([view], occluders, cell=4, window=1)
+    three = _Surface([view], occluders, cell=4, window=AssignConfig().violation_window)
+    assert z0 > 0 and hole.sum() > 0
+    assert one.status(behind, 0.01, 0.004)[1][0, 0]  # seen through the hole
+    assert not three.status(behind, 0.01, 0.004)[1][0, 0]
+    assert three.status(front, 0.01, 0.004)[1][0, 0]
 
 
 def test_free_space_label_for_a_hidden_counterpart():
@@ -403,3 +456,9 @@ def test_table_does_not_pull_a_link_lying_on_it_to_the_base():
     assert (ev.static_edges[truth == 1] > 0).mean() > 0.9 and not ev.like_base[1].any()
     ev.like_base[:] = True
     assert (ev.label()[truth == 1] == 0).mean() > 0.9
+
+
+@pytest.mark.parametrize("window", [0, 2, 4, -3])
+def test_a_free_space_window_not_centred_on_its_cell_is_refused(window):
+    with pytest.raises(ValueError, match="violation_window must be an odd number"):
+        AssignConfig(violation_window=window)

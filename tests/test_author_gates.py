@@ -31,9 +31,10 @@ _RESULTS: dict[str, dict] = {}
 
 #: {(object, gate): reason} of the gates an imported object misses at the default configuration,
 #: with the figure measured; strict xfails, as in test_gates: the day one passes, its entry must
-#: go. Empty: at 09052e6 both objects pass every gate on the 2-core machine (chest: axes 0.03 and
-#: 0.00 deg, segmentation 0.974, manipulation 30.0 of 30.0 deg; mm_cabinet: axis 0.08 deg,
-#: segmentation 0.993, door 29.9 of 30.0 deg at 1.0 N).
+#: go. Empty: at the merge of this session's segmentation and robot work (2026-11-26) both objects
+#: pass every gate on the 2-core machine (chest: axes 0.03 and 0.02 deg, segmentation 0.978, lid
+#: 30.0 of 30.0 deg at 5.6 N, drawer 100 mm; mm_cabinet: axis 0.10 deg, segmentation 0.992, door
+#: 30.0 of 30.0 deg at 2.2 N).
 KNOWN_MISSES: dict[tuple[str, str], str] = {}
 
 #: Plain xfails (see test_gates.MACHINE_DEPENDENT): gates these objects passed at 09052e6 on an
@@ -42,13 +43,15 @@ KNOWN_MISSES: dict[tuple[str, str], str] = {}
 #: not say which), and whose figures sit near their limits or changed with the CPU elsewhere.
 MACHINE_DEPENDENT: dict[tuple[str, str], str] = {
     ("chest", "segmentation_accuracy"):
-        "0.974 at 09052e6 and 0.977 at d8d7b8d on the AVX-512 machine (limit 0.97); 0.891 at "
-        "30faea6; 0.899 at 21fcbec (a match prior since reverted)",
+        "0.978 at fc5dda2's merge on the AVX-512 machine (limit 0.97), 0.974 at 09052e6; 0.891 at "
+        "30faea6; 0.899 at 21fcbec (with a support plane since reverted)",
     ("chest", "manipulation"):
-        "passes at 09052e6 on the AVX-512 machine (9.9 N); at 30faea6 no grasp was planned",
+        "passes on the AVX-512 machine at fc5dda2's merge (lid 5.6 N); at d653af2 its lid was "
+        "grasped at a seam on the carcass and did not move (a hidden candidate 4.9 mm from the "
+        "carcass ranked first; now such candidates rank last); at 30faea6 no grasp was planned",
     ("mm_cabinet", "manipulation"):
-        "passes at 09052e6 on the AVX-512 machine (1.0 N); at 30faea6 2.18 N against the 2 N "
-        "floor (its force reference had failed)",
+        "passes on the AVX-512 machine at fc5dda2's merge (2.2 N); with the seg4 branch alone "
+        "the gripper stopped 6.0 mm from its grasp; at 30faea6 2.18 N against the 2 N floor",
 }
 
 #: Objects whose listed misses were not measured at the current code (plain xfails).

@@ -33,16 +33,12 @@ SCENES = tuple(list_scenes())
 
 #: {(scene, gate): reason} of the gates a scene misses at the default configuration, with the
 #: figure measured by the main job on the 2-core machine; strict xfails (the day one passes, its
-#: entry must go), except for the scenes of NOT_REMEASURED. Empty: every gate a scene misses on
-#: every machine measured is listed here, and none is. At 09052e6 (the main job on all nine
-#: scenes, 2026-11-26, AVX-512 machine): eight scenes pass every gate, drawer all but its
-#: segmentation (MACHINE_DEPENDENT); cabinet_door_only's manipulation (30.0 of 30.0 deg, 3.0 N)
-#: since a grasp's rolls that touch nothing of the model come first; scissors' off-object share
-#: (0.0429; 0.0509 at b54bd20) since the free-space mosaic counts only cells its views agree on,
-#: its manipulation (30.0 of 30.0 deg, 0.6 N) since grasp normals are fitted planes;
-#: scraper_truck's axes (0.24 and 0.27 deg; 0.486 and 0.529 on CI at b54bd20) since the links'
-#: motions are refitted with the matches' triangulation covariances, its manipulation (4.7 N of
-#: 15 and 14 N limits) since the force reference grasps with the manipulation's own roll.
+#: entry must go), except for the scenes of NOT_REMEASURED. Empty: at the merge of seg4 and robot3
+#: (2026-11-26, the main job on all nine scenes, AVX-512 machine) every scene passes every gate:
+#: drawer's segmentation 0.995 (0.954 before: free-space violations seen through holes in its
+#: walls), cabinet 0.981, the lowest pliers_panda 0.971 and pliers 0.973; scraper_truck's axes
+#: 0.24 and 0.27 deg (0.486 and 0.529 on CI at b54bd20); scissors' off-object share 0.043
+#: (0.0509 at b54bd20).
 KNOWN_MISSES: dict[tuple[str, str], str] = {}
 
 #: Scenes whose listed misses were not measured again after the last change that can alter
@@ -59,15 +55,9 @@ NOT_REMEASURED: frozenset[str] = frozenset()
 #: not change with llvmpipe's vector width; forcing the AVX2 paths on the AVX-512 machine moved
 #: scraper_truck's axes from 0.74 / 0.80 to 0.64 / 0.69 deg at 911bcef), and where a figure sits
 #: near its limit the verdict follows the CPU. Measured: CI's run of b54bd20 (2026-11-25) and
-#: the main job on the AVX-512 machine at 911bcef, 847ccaa and 09052e6 (2026-11-26).
-MACHINE_DEPENDENT: dict[tuple[str, str], str] = {
-    ("drawer", "segmentation_accuracy"):
-        "0.954 at d8d7b8d, 09052e6 and 911bcef on the AVX-512 machine (limit 0.97): 2366 of B's "
-        "9010 drawer points, its inside still in the carcass, labelled as the carcass (a match "
-        "prior measured through the panels and free-space votes through holes in the near wall; "
-        "a prior measured along the surface gave 0.973 but took the imported chest to 0.899, "
-        "so it was reverted); passed on CI at b54bd20",
-}
+#: the main job on the AVX-512 machine at 911bcef, 847ccaa and 09052e6 (2026-11-26). Empty since
+#: drawer's segmentation, its one entry (0.954 here, >= 0.97 on CI at b54bd20), measures 0.995.
+MACHINE_DEPENDENT: dict[tuple[str, str], str] = {}
 
 _RESULTS: dict[str, dict] = {}
 

@@ -271,30 +271,39 @@ def test_every_joint_of_the_model_is_moved_and_scored_against_its_true_joint(mon
     assert not man["passes"] and man["runs"][0]["true_joint"] is None
 
 
-def test_the_force_reference_regrasps_with_the_manipulations_own_ik_seed(monkeypatch, tmp_path):
-    """The force reference replans the manipulation's grasp (point, normal, roll) along the true
-    joint; it must use the manipulation's IK restarts (its seed) too. With seed 0 always, the
-    reference found 'grasp pose unreachable' for grasps the run at seeds 1 and 2 had reached
-    (truck, both seeds), so the force limit fell to the 2 N floor and a good manipulation
-    failed its force gate (benchmarks/bench_gates.py at 863fc30)."""
+def test_the_force_reference_replays_the_runs_grasp_and_arm(monkeypatch, tmp_path):
+    """The force reference replays the manipulation's grasp (point, normal, roll, the arm's
+    configurations from pre-grasp to grasp, the run's start) along the true joint and along
+    the two joints made as wrong as the gates allow; it plans nothing again in the true scene.
+    Replanned (with seed 0, then with the run's seed), it had found 'grasp pose unreachable'
+    for grasps the run had reached, or refused them on the true scene's contacts, and the force
+    limit fell to the 2 N floor (benchmarks/bench_gates.py at 863fc30)."""
     from sim import manipulate as manip_pkg
     from sim.evaluate import scoring
 
     scene = load_scene("drawer")
-    seeds = []
+    calls = []
 
-    def fake(*args, **kw):
-        seeds.append(kw.get("seed"))
+    def fake_replay(scene_, est, amount, run_, *, q_start=None, **kw):
+        calls.append((est.source, amount, run_, list(q_start)))
         raise manip_pkg.ManipulationError("recorded")
 
-    monkeypatch.setattr(manip_pkg, "manipulate", fake)
-    if hasattr(scoring, "manipulate"):
-        monkeypatch.setattr(scoring, "manipulate", fake)
+    def no_plan(*args, **kw):
+        raise AssertionError("the force reference planned again")
+
+    monkeypatch.setattr(manip_pkg, "replay", fake_replay)
+    monkeypatch.setattr(manip_pkg, "manipulate", no_plan)
     (tj,) = [j for j in scene.joints if j.type == "prismatic"]
-    run = {"estimate": {"axis": list(tj.axis)}, "requested": 0.1,
+    approach = [[0.1 * k] * 7 for k in range(3)]
+    run = {"estimate": {"axis": list(-np.asarray(tj.axis))}, "requested": 0.1,
            "grasp_point": [0.0, 0.0, 0.5], "grasp_normal": [0.0, 0.0, 1.0],
-           "grasp_roll_deg": 90.0}
-    ref, _, _ = scoring.manipulation_reference_stage(scene, tj.name, run, [0.0] * 7, tmp_path,
-                                                     "hash", 2)
-    assert seeds == [2, 2, 2]  # the true joint and the two made as wrong as the gates allow
+           "grasp_roll_deg": 90.0, "approach": approach, "q_start": [0.3] * 7}
+    ref, _, _ = scoring.manipulation_reference_stage(scene, tj.name, run, [0.3] * 7, tmp_path,
+                                                     "hash")
+    assert len(calls) == 3  # the true joint and the two made as wrong as the gates allow
+    assert calls[0][0] == "ground truth (force reference)"
+    assert all(amount == pytest.approx(-0.1) for _, amount, _, _ in calls)  # the run's sense
+    for _, _, grasp, q in calls:
+        assert grasp["approach"] == approach and grasp["grasp_roll_deg"] == 90.0
+        assert grasp["grasp_point"] == run["grasp_point"] and q == [0.3] * 7
     assert "recorded" in ref["error"]

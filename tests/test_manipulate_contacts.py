@@ -1,7 +1,8 @@
 """The plan's contact and visibility checks (issue 21): the travel to the pre-grasp pose is
-checked as densely as the arm moves and keeps a clearance from the model, the gripper at the
-grasp pose may touch the grasped link near the grasp point but not plunge into it, and the
-wrist camera's rays do not start inside its own housing."""
+checked as densely as the arm moves and keeps a clearance from the model, so is the approach
+from the pre-grasp pose to the grasp, the gripper at the grasp pose may touch the grasped link
+near the grasp point but not plunge into it, and the wrist camera's rays do not start inside
+its own housing."""
 
 from __future__ import annotations
 
@@ -12,7 +13,14 @@ from synthetic import box_faces
 
 import sim  # noqa: F401
 from artrecon.model import ArticulatedModel, Link
-from sim.manipulate import GraspCandidate, PlanningConfig, build_world, fresh_data
+from sim.manipulate import (
+    GraspCandidate,
+    JointEstimate,
+    PlanningConfig,
+    build_world,
+    fresh_data,
+    plan_candidate,
+)
 from sim.manipulate.candidates import grasp_frame
 from sim.manipulate.planning_world import PlanningWorld
 from sim.scene import load_scene
@@ -100,6 +108,56 @@ def test_a_gripper_plunging_into_the_grasped_link_is_refused(world):
                                          PlanningConfig(gripper_contact_depth=np.inf))
     assert unbounded.arm_contacts(plunged, grasp_point=grasp, grasp_links={0},
                                   grasp_normal=up) == []
+
+
+def test_an_obstacle_on_the_approach_line_rejects_the_candidate(world):
+    """A post 3 cm square grasped on its top (the model's link 0, which a slide moves), and a
+    model sphere of another link (two points) in the column one of the PUMA's fingers sweeps
+    from the pre-grasp pose down to the grasp pose: above the hand at the grasp pose, below the
+    fingertip at the pre-grasp pose (15 cm out, which leaves room between the two), so neither
+    end touches it. The approach meets it -- a real touch, found with no clearance too -- and
+    the candidate is rejected for its approach; without the obstacle the same candidate is
+    planned, the fingertips stopping 3 mm short of the post's own top (allowed, as at the grasp
+    pose)."""
+    top = 0.45 + 0.08
+    pts, nrm = box_faces(np.array([0.0, 0.0, top - 0.04]), np.array([0.015, 0.015, 0.04]),
+                         step=0.003)
+    grasp, up = np.array([0.0, 0.0, top]), np.array([0.0, 0.0, 1.0])
+    est = JointEstimate("prismatic", np.array([1.0, 0.0, 0.0]), grasp)
+    cand = GraspCandidate(grasp, up)
+    q0 = fresh_data(world).qpos[world.qidx]
+    obstacle = np.array([0.0, 0.04, top + 0.1])  # beside the post's axis, 10 cm above its top
+    margin = PlanningConfig().travel_clearance
+
+    def world_with(obstacle, clearance=margin):
+        links = [Link(points=pts, match_indices=np.full(len(pts), -1), normals=nrm,
+                      name="post")]
+        if obstacle is not None:
+            links.append(Link(points=np.array([obstacle, obstacle]),
+                              match_indices=np.full(2, -1), normals=np.tile(up, (2, 1)),
+                              name="obstacle"))
+        cfg = PlanningConfig(pregrasp_distance=0.15, travel_clearance=clearance)
+        return PlanningWorld.from_model(world, ArticulatedModel(links=links, joints=[],
+                                                                scale_known=True), cfg)
+
+    free = world_with(None)
+    plan, why = plan_candidate(free, cand, est, 0.03, q0, 0, {0}, (0.0,))
+    assert plan is not None, why
+    assert free.approach_contacts(plan.approach, grasp, {0}, up) == ([], 1.0)
+    p_pre, _, half = _finger_pose(free, plan.q_pre)
+    assert p_pre[2] - half[2] > obstacle[2] + PlanningConfig().sphere_radius  # tip above it
+
+    for clearance in (margin, 0.0):
+        blocked = world_with(obstacle, clearance)
+        assert blocked.arm_contacts(plan.q_pre) == []
+        assert blocked.arm_contacts(plan.approach[-1], grasp_point=grasp, grasp_links={0},
+                                    grasp_normal=up) == []
+        hits, at = blocked.approach_contacts(plan.approach, grasp, {0}, up)
+        assert hits and all("model link 1" in h for h in hits)
+        assert 0.0 < at < 1.0
+    rejected, why = plan_candidate(world_with(obstacle), cand, est, 0.03, q0, 0, {0}, (0.0,))
+    assert rejected is None
+    assert "approach to the grasp meets model link 1" in why
 
 
 def test_the_panda_camera_is_not_hidden_by_its_own_housing():

@@ -34,6 +34,7 @@ from sim.manipulate import (
     build_world,
     joint_estimate_from_model,
     manipulate,
+    replay,
 )
 from sim.scene import load_scene
 
@@ -86,15 +87,14 @@ def _run(scene, model, q_start, world, **kw):
 
 def _score(scene, joint, res, q_start, world):
     """Scoring after the fact: the run against the true joint, with the force the true joint
-    needs from the same grasp and the force of a joint as wrong as the gates allow (the
-    harness's references, sim.evaluate.scoring.manipulation_reference_stage)."""
+    needs from the same grasp, replayed (the run's own arm configurations), and the force of a
+    joint as wrong as the gates allow (the harness's references,
+    sim.evaluate.scoring.manipulation_reference_stage)."""
     tj = scene.joint(joint)
     amount = np.sign(np.dot(tj.axis, res.estimate["axis"])) * res.requested
 
     def peak(est):
-        return manipulate(scene, est, amount, grasp_point=res.grasp_point,
-                          grasp_normal=res.grasp_normal, q_start=q_start, world=world,
-                          joint=joint).peak_force
+        return replay(scene, est, amount, res.to_dict(), q_start=q_start, world=world).peak_force
 
     needed = peak(JointEstimate(tj.type, tj.axis, tj.point, "truth", tj.name))
     tolerated = max(peak(e) for e in gate_tolerance_estimates(tj))
@@ -134,6 +134,27 @@ def test_a_grasp_point_facing_away_from_the_camera_is_hidden_and_works(truck):
     (truth,) = truth_world.classify_visibility(
         q, [GraspCandidate(np.asarray(res.grasp_point), np.asarray(res.grasp_normal))])
     assert truth.hidden, truth.visibility
+
+
+def test_the_force_reference_replays_the_runs_grasp(truck):
+    """Scoring's force reference moves the run's own grasp along the true joint: the same grasp
+    frame on the object, reached by the same arm configurations (pre-grasp to grasp) from the
+    same start, only the motion along the true joint is new; nothing is planned again in the
+    true scene (whose checks could refuse the grasp or pick another roll)."""
+    scene, world, joint, model, q = truck
+    res = _run(scene, model, q, world)
+    tj = scene.joint(joint)
+    amount = np.sign(np.dot(tj.axis, res.estimate["axis"])) * res.requested
+    ref = replay(scene, JointEstimate(tj.type, tj.axis, tj.point, "truth", tj.name), amount,
+                 res.to_dict(), world=world)
+    assert ref.planned_in == "replay of the run's grasp"
+    assert ref.q_start == res.q_start == [float(x) for x in q]
+    assert ref.approach == res.approach and len(res.approach) > 1
+    assert (ref.grasp_point, ref.grasp_normal, ref.grasp_roll_deg, ref.grasp_body) == \
+        (res.grasp_point, res.grasp_normal, res.grasp_roll_deg, res.grasp_body)
+    assert ref.estimate["source"] == "truth" and not ref.grasp_lost
+    moved = ref.displacement(joint)
+    assert abs(moved - amount) <= gates.GATES["manipulation_relative_error"] * abs(amount)
 
 
 def _turned(model, degrees):

@@ -14,8 +14,8 @@ Per scene (a bundled name or an MJCF path; default: every bundled scene):
 4. **manipulate**: the arm grasps the child link of the scene's first moving joint that has an
    estimated joint (:func:`manipulation_target`; a static joint has none) at the point
    :func:`sim.manipulate.manipulate` chooses by default (preferring one hidden from the wrist camera
-   at the last view of A, where the arm is after the capture) and moves it along the *estimated*
-   joint by the *estimated* motion A -> B;
+   at the fresh view's pose, where the arm is after the registration) and moves it along the
+   *estimated* joint by the *estimated* motion A -> B, starting from that pose;
 5. **score** everything against the ground truth (:mod:`sim.metrics`), see :func:`score_scene`.
 
 Stage results are cached under ``OUT/cache/<stage>-<hash>/`` by the hash of their inputs
@@ -78,8 +78,8 @@ from sim.evaluate.scoring import (
 from sim.evaluate.stages import (
     configuration_chains,
     freeze_code_keys,
+    fresh_arm_pose,
     fresh_view_stage,
-    last_arm_pose,
     manipulation_stage,
     reconstruct_stage,
     register_configuration,
@@ -166,8 +166,9 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
 
         stage = "fresh_view"
         t = time.perf_counter()
-        fresh, _, fhit = fresh_view_stage(scene, capture_sets["a"], keys[0], ev, cache_root)
+        fresh, fmeta, fhit = fresh_view_stage(scene, capture_sets["a"], keys[0], ev, cache_root)
         result["cached_stages"] += ["fresh_view"] if fhit else []
+        q_arm = fresh_arm_pose(fmeta)  # where the arm is now: the manipulation starts there
         timings["fresh_view"] = time.perf_counter() - t
 
         stage = "registration"
@@ -193,9 +194,8 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
         if ev.manipulate:
             stage = "manipulation"
             t = time.perf_counter()
-            result["manipulation"] = _manipulations(scene, registered, result,
-                                                    last_arm_pose(capture_sets["a"]), keys, ev,
-                                                    cache_root, scene_hash)
+            result["manipulation"] = _manipulations(scene, registered, result, q_arm, keys,
+                                                    ev, cache_root, scene_hash)
             timings["manipulation"] = time.perf_counter() - t
     except Exception as err:
         result["error"] = f"{stage}: {type(err).__name__}: {err}"
@@ -211,7 +211,8 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
 def _manipulations(scene, registered, result, q_start, keys, ev, cache_root,
                    scene_hash) -> dict:
     """Every joint of the model moved in turn, each as the model says (:func:`manipulation_stage`:
-    planned from the registered model alone); then scored: the true joint each estimates (the
+    planned from the registered model alone, from the arm's configuration ``q_start``: where the
+    fresh view left it); then scored: the true joint each estimates (the
     scoring's pairing), how far it moved against the requested motion, the force against the
     force the true joint needs (:func:`manipulation_reference_stage`)."""
     by_est = {r["estimated_joint"]: r for r in result.get("joints") or []
@@ -226,9 +227,11 @@ def _manipulations(scene, registered, result, q_start, keys, ev, cache_root,
         reference = None
         if row is not None and not run.get("error"):
             reference, _, _ = manipulation_reference_stage(scene, row["name"], run, q_start,
-                                                           cache_root, scene_hash, ev.seed)
+                                                           cache_root, scene_hash)
         runs.append(score_manipulation(scene, j.name, run, row, reference))
-    return summarise_manipulations(runs)
+    return {**summarise_manipulations(runs),
+            "q_start": None if q_start is None else [float(x) for x in q_start],
+            "q_start_from": "the fresh view's arm pose (where the registration left the arm)"}
 
 
 # ---------------------------------------------------------------------------- run

@@ -429,6 +429,7 @@ def score_manipulation(scene: Scene, model_joint: str, run: dict, row: dict | No
     out.update({key: run[key] for key in ("grasp_point", "grasp_normal", "grasp_hidden",
                                           "grasp_visibility", "grasp_body", "grasp_lost",
                                           "grasp_lost_at", "planned_in", "arm_contacts")})
+    out.update(grasp_roll_deg=run.get("grasp_roll_deg"), candidates=run.get("candidates"))
     out.update(peak_force_n=run["peak_force"], rms_force_n=run["rms_force"],
                peak_torque_nm=run["peak_torque"], grip_limits=run["grip_limits"],
                tracking_max_deg=run["tracking_max_deg"],
@@ -507,34 +508,33 @@ def gate_tolerance_estimates(tj) -> list:
 
 
 def manipulation_reference_stage(scene: Scene, true_joint: str, run: dict, q_start,
-                                 cache_root: Path, scene_hash: str, seed: int = 0
+                                 cache_root: Path, scene_hash: str
                                  ) -> tuple[dict, dict, bool]:
-    """Scoring only, after the motion: the same grasp (point, normal, the gripper's roll and
-    the IK's restarts, ``seed``: the manipulation's own, so that the same arm configuration is
-    found) and the same requested motion, but along the scene's TRUE joint
-    ``true_joint`` (the force the joint itself asks for: friction, damping, inertia, the arm's
-    own dynamics), and along the true joint made as wrong as the accuracy gates allow
+    """Scoring only, after the motion: the run's own grasp replayed (:func:`sim.manipulate.
+    replay`: the same grasp frame on the object -- point, normal, the gripper's roll -- reached
+    by the run's own arm configurations, pre-grasp to grasp, from ``q_start``, the run's start)
+    and moved by the same requested motion, but along the scene's TRUE joint ``true_joint``
+    (the force the joint itself asks of this grasp: friction, damping, inertia, the arm's own
+    dynamics), and along the true joint made as wrong as the accuracy gates allow
     (:func:`gate_tolerance_estimates`: the force an axis the gates accept may cost, through the
-    stiff grasp). The manipulation's force limit is the larger of a multiple of the first and
-    the worst of the others. Cached; a reference that cannot be
-    planned or grasped is recorded (``error``)."""
-    from sim.manipulate import JointEstimate, ManipulationError, manipulate  # EGL: see the top
+    stiff grasp). Nothing is planned again in the true scene, so its checks cannot refuse the
+    run's grasp nor choose another arm configuration. The manipulation's force limit is the
+    larger of a multiple of the first and the worst of the others. Cached; a reference that
+    cannot be replayed or grasped is recorded (``error``)."""
+    from sim.manipulate import JointEstimate, ManipulationError, replay  # EGL: see the top
 
     tj = scene.joint(true_joint)
     est = JointEstimate(tj.type, tj.axis, tj.point, "ground truth (force reference)", tj.name)
     sense = 1.0 if float(np.dot(tj.axis, run["estimate"]["axis"])) >= 0 else -1.0
     amount = sense * float(run["requested"])
-    inputs = {"scene_hash": scene_hash, "joint": true_joint, "amount": amount,
-              "grasp": [run["grasp_point"], run["grasp_normal"], run.get("grasp_roll_deg")],
-              "q_start": list(q_start),
-              "code": _manipulate_sources(), "tolerance": 1, "seed": seed}
+    grasp = {k: run.get(k) for k in ("grasp_point", "grasp_normal", "grasp_roll_deg",
+                                     "grasp_hidden", "grasp_visibility", "approach")}
+    inputs = {"scene_hash": scene_hash, "joint": true_joint, "amount": amount, "grasp": grasp,
+              "q_start": list(q_start), "code": _manipulate_sources(), "tolerance": 1}
 
     def one(e) -> dict:
         try:
-            res = manipulate(scene, e, amount, grasp_point=run["grasp_point"],
-                             grasp_normal=run["grasp_normal"],
-                             grasp_roll_deg=run.get("grasp_roll_deg"), q_start=q_start,
-                             joint=true_joint, seed=seed)
+            res = replay(scene, e, amount, grasp, q_start=q_start)
             return {"peak_force": res.peak_force, "rms_force": res.rms_force,
                     "peak_torque": res.peak_torque, "grasp_lost": res.grasp_lost,
                     "displacement": res.displacement(true_joint)}

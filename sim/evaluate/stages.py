@@ -312,12 +312,24 @@ def fresh_view_stage(scene: Scene, capture_set: Path, capture_key: str, ev: Eval
         fv = capture_fresh_view(perturb.capture_scene(scene, ev.perturb, "a"), "a", q_start,
                                 folder / "fresh", seed=ev.seed)
         perturb.perturb_fresh_pose(fv.pose_file, scene, ev.perturb, ev.seed)
-        return {"q": fv.q.tolist()}
+        return {"q": fv.q.tolist()}  # the arm's configuration now: the manipulation's start
 
     inputs = {"capture": capture_key, "seed": ev.seed, "code": _capture_sources(),
               "perturb": ev.perturb.changed()}
     folder, meta, hit = cache.cached_stage(cache_root, "fresh_view", inputs, build)
     return folder / "fresh", meta, hit
+
+
+def fresh_arm_pose(fresh_meta: dict) -> list[float]:
+    """The arm's joint angles (rail first) at which the fresh view was taken, as
+    :func:`fresh_view_stage` records them (the arm's own measured joints after its move there,
+    before any perturbation of what the robot reports, like :func:`last_arm_pose`): where the
+    arm is when the registration is done and the manipulation starts."""
+    q = fresh_meta.get("q")
+    if not q:
+        raise StageError("fresh_view", "the fresh view's record holds no arm joint angles "
+                         f"(stage key {fresh_meta.get('key')}): delete that cache folder")
+    return [float(x) for x in q]
 
 
 def register_stage(model_dir: Path, set_a: Path, fresh: Path, seed: int) -> dict:
@@ -350,7 +362,8 @@ def manipulation_stage(scene: Scene, registered, model_joint: int, q_start, keys
     """Move the model's joint ``model_joint`` as the model says (cached): the arm plans from the
     registered model alone (:func:`sim.manipulate.manipulate` with ``registered``), grasps the
     joint's child link and moves it by the model's motion A -> B along the model's axis, from
-    ``q_start`` (where the capture left the arm). Returns the result record, stage metadata,
+    ``q_start`` (where the fresh view left the arm: :func:`fresh_arm_pose`; grasp points are
+    judged hidden from the wrist camera there). Returns the result record, stage metadata,
     hit. A plan or grasp that fails is recorded (``error``), not raised."""
     from sim.manipulate import (  # EGL: see the top
         ManipulationError,

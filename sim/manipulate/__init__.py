@@ -43,6 +43,7 @@ from sim.manipulate.planning import (
     plan_candidate,
     plan_grasp,
     rank,
+    replay_plan,
     scene_grasp_candidates,
 )
 from sim.manipulate.world import World, build_world, fresh_data
@@ -170,10 +171,48 @@ def manipulate(scene, estimate: JointEstimate, amount: float, *, registered=None
     return result
 
 
+def replay(scene, estimate: JointEstimate, amount: float, run: dict, *, q_start=None,
+           world: World | None = None, grip: GripConfig | None = None,
+           planning_config: PlanningConfig | None = None) -> ManipulationResult:
+    """An earlier run's grasp replayed in physics, then moved by ``amount`` along ``estimate``.
+
+    The same grasp on the object (the run's ``grasp_point``, ``grasp_normal``,
+    ``grasp_roll_deg``) reached by the same arm configurations (its ``approach``: pre-grasp to
+    grasp) from the same start (its ``q_start``, unless given): only the motion is new
+    (:func:`sim.manipulate.planning.replay_plan`). Nothing is planned again, so the true
+    world's checks cannot pick another roll or refuse the grasp: scoring's force reference
+    (:func:`sim.evaluate.scoring.manipulation_reference_stage`) moves the run's own grasp along
+    the true joint, and the run's force is compared with like.
+
+    Raises
+    ------
+    ManipulationError
+        The run holds no approach (it failed before the grasp), the motion from its grasp leaves
+        the arm's workspace, or the grasp is not made in physics.
+    """
+    grip = grip or GripConfig()
+    planning_config = planning_config or PlanningConfig()
+    if not run.get("approach"):
+        raise ManipulationError("the run to replay holds no approach (it made no grasp)")
+    if world is None:
+        world = build_world(scene)
+    q_start = np.asarray(run["q_start"] if q_start is None else q_start, float)
+    cand = GraspCandidate(np.asarray(run["grasp_point"], float),
+                          np.asarray(run["grasp_normal"], float),
+                          bool(run.get("grasp_hidden")), run.get("grasp_visibility", ""))
+    plan, why = replay_plan(world.kin, planning_config, cand, float(run["grasp_roll_deg"]),
+                            np.asarray(run["approach"], float), estimate, amount)
+    if plan is None:
+        raise ManipulationError(f"the run's grasp cannot be replayed: {why}")
+    return execute_plan(world, plan, estimate, amount, q_start,
+                        candidates_summary={"replayed": True},
+                        planned_in="replay of the run's grasp", grip=grip)
+
+
 __all__ = [
     "GraspCandidate", "GripConfig", "JointEstimate", "ManipulationError", "ManipulationResult",
     "PlanningConfig", "PlanningWorld", "WRONG_AXIS_TILT_DEG", "World", "achieved_along",
     "build_world", "default_joint", "execute_plan", "fresh_data", "joint_estimate_from_model",
     "joint_estimate_from_scene", "manipulate", "model_grasp_candidates", "moving_links",
-    "plan_candidate", "plan_grasp", "rank", "scene_grasp_candidates",
+    "plan_candidate", "plan_grasp", "rank", "replay", "scene_grasp_candidates",
 ]

@@ -113,6 +113,11 @@ class ManipulationResult:
     candidates: dict
     planned_in: str
     """the world the plan was made in (``"registered model"`` in the harness)"""
+    q_start: list = field(default_factory=list)
+    """the arm's configuration the run started from (rad, rail first)"""
+    approach: list = field(default_factory=list)
+    """the plan's arm waypoints from the pre-grasp pose to the grasp pose (rad): the arm's
+    configuration at the grasp is the last (scoring's force reference replays them)"""
     log: list = field(default_factory=list)
     frames: list = field(default_factory=list, repr=False)
     """(time, phase, qpos copy) snapshots, if recording was asked for"""
@@ -369,7 +374,9 @@ def execute(world: World, plan: Plan, estimate: JointEstimate, amount: float, q_
         path_error_max=path_err, arm_contacts=sorted(run.contacts),
         simulated_time=float(data.time), motion_duration=float(duration),
         joints_before=before, joints_after=after,
-        candidates=candidates_summary or {}, planned_in=planned_in, log=messages,
+        candidates=candidates_summary or {}, planned_in=planned_in,
+        q_start=[float(x) for x in q_start],
+        approach=[[float(x) for x in qk] for qk in plan.approach], log=messages,
         frames=run.frames)
     say("%s: requested %.4g along the %s estimate; peak weld force %.1f N (rms %.1f), torque "
         "%.2f N m; tracking max %.2f deg, grasp path error max %.1f mm", world.name, amount,

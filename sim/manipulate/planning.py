@@ -66,11 +66,19 @@ class Plan:
 
 def rank(candidates: list[GraspCandidate], est: JointEstimate, prefer_hidden: bool,
          config: PlanningConfig | None = None) -> list[GraspCandidate]:
-    """Usable candidates, best first: hidden ones first when ``prefer_hidden`` (the method's
-    case: a point the camera cannot see now), then by their clearance from the fixed parts
-    (:attr:`PlanningConfig.clear_of_fixed`, ``min_clear_of_fixed``), then the longest lever
-    about the estimated axis (revolute) or the highest point (prismatic). Candidates facing the
-    table and, for a revolute joint, too near its axis are left out."""
+    """Usable candidates, best first: those nearer than
+    :attr:`PlanningConfig.min_clear_of_fixed` to a fixed part of the model last, hidden or not;
+    among the others hidden ones first when ``prefer_hidden`` (the method's case: a point the
+    camera cannot see now), then by their clearance from the fixed parts
+    (:attr:`PlanningConfig.clear_of_fixed`), then the longest lever about the estimated axis
+    (revolute) or the highest point (prismatic). Candidates facing the table and, for a
+    revolute joint, too near its axis are left out.
+
+    A candidate a few millimetres from another link lies where the segmentation is least sure
+    (the seam between two links): the imported chest's lid was grasped, as its only kind of
+    hidden candidate, on its front edge 4.9 mm above the carcass's points, and the gripper
+    closed on the carcass's front panel (the lid did not move). Being hidden is what the method
+    shows, not a reason to grasp at a seam."""
     config = config or PlanningConfig()
     def lever(c):
         v = c.point - est.point
@@ -85,7 +93,8 @@ def rank(candidates: list[GraspCandidate], est: JointEstimate, prefer_hidden: bo
         hidden_rank = 0 if (c.hidden == prefer_hidden) else 1
         tier = (0 if c.clearance >= config.clear_of_fixed else
                 1 if c.clearance >= config.min_clear_of_fixed else 2)
-        return (hidden_rank, tier, -lever(c) if est.type == "revolute" else -c.point[2])
+        return (tier == 2, hidden_rank, tier,
+                -lever(c) if est.type == "revolute" else -c.point[2])
 
     return sorted(usable, key=key)
 
@@ -104,10 +113,77 @@ def plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, 
     rounds a sharp edge, and cabinet_door_only's door handle grasped at its corner with the
     fingers along it, 5 mm out of the model there, lost the grasp at 1% of the turn, 8.4 N and
     3.0 N m, where a roll with the fingers either side of the handle turned it at 3 N); then the
-    shortest travel. The plan, or None and why."""
+    shortest travel. The IK starts from ``q_start``; when no roll passes from there, it starts
+    again from the arm's home configuration (:attr:`PlanningWorld.q_home`: another branch of
+    the arm's IK, whose travel from ``q_start`` is checked like any other). The plan, or None
+    and why."""
     rolls = pw.config.rolls_deg if rolls_deg is None else tuple(rolls_deg)
+    q_start = np.asarray(q_start, float)
     with _limits_narrowed(pw.kin, pw.config.joint_limit_margin):
-        return _plan_candidate(pw, cand, est, amount, q_start, seed, moving_links, rolls)
+        plan, why = _plan_candidate(pw, cand, est, amount, q_start, q_start, seed,
+                                    moving_links, rolls)
+        if plan is not None or np.allclose(pw.q_home, q_start):
+            return plan, why
+        home, why_home = _plan_candidate(pw, cand, est, amount, q_start, pw.q_home, seed,
+                                         moving_links, rolls)
+    return (home, "") if home is not None else (None, f"{why} | from home: {why_home}")
+
+
+def motion_waypoints(est: JointEstimate, amount: float, cfg: PlanningConfig) -> np.ndarray:
+    """The path parameter of the motion's waypoints: one per :attr:`PlanningConfig.
+    waypoint_angle` (revolute) or ``waypoint_distance`` (prismatic) of ``amount``, at least
+    ``min_waypoints``."""
+    n_way = max(cfg.min_waypoints, int(np.ceil(abs(amount) / (
+        cfg.waypoint_angle if est.type == "revolute" else cfg.waypoint_distance))))
+    return np.linspace(0.0, 1.0, n_way + 1)
+
+
+def motion_path(kin, cfg: PlanningConfig, est: JointEstimate, amount: float, T_g: np.ndarray,
+                q_grasp: np.ndarray, s: np.ndarray):
+    """The arm's waypoints of the motion by ``amount`` along ``est`` from the grasp pose ``T_g``
+    held at ``q_grasp``: the IK of the grasp frame carried by the joint's motion at each ``s``,
+    each from the one before, no joint stepping more than
+    :attr:`PlanningConfig.max_waypoint_joint_step`.
+
+    Returns
+    -------
+    q_path : (k, n) float
+    p_path : (k, 3) float
+        the grasp frame's planned positions
+    stop : float or None
+        where along the path the IK failed (None: the whole path, ``k == len(s)``)
+    """
+    q = np.asarray(q_grasp, float)
+    q_path, p_path = [q], [T_g[:3, 3].copy()]
+    for sk in s[1:]:
+        T = est.motion(sk * amount) @ T_g
+        r = kin.solve_ik(T, "grasp", q, restarts=0)
+        if not r.success or np.max(np.abs(r.q - q)) > cfg.max_waypoint_joint_step:
+            return np.array(q_path), np.array(p_path), float(sk)
+        q_path.append(r.q)
+        p_path.append(T[:3, 3].copy())
+        q = r.q
+    return np.array(q_path), np.array(p_path), None
+
+
+def replay_plan(kin, cfg: PlanningConfig, cand: GraspCandidate, roll_deg: float,
+                approach: np.ndarray, est: JointEstimate, amount: float) -> tuple[Plan | None, str]:
+    """An earlier plan's grasp, replayed: the same grasp frame on the object (``cand``'s point
+    and normal, the gripper's ``roll_deg``), the same arm configurations (``approach``: the
+    earlier plan's waypoints from its pre-grasp pose to its grasp pose), and a new motion by
+    ``amount`` along ``est`` from there (:func:`motion_path`). Nothing is planned again and
+    nothing checked for contacts: scoring's force reference, which measures what the true joint
+    asks of this grasp. The plan, or None and why."""
+    approach = np.atleast_2d(np.asarray(approach, float))
+    T_g = grasp_frame(cand.point, cand.normal, roll_deg, cfg.grasp_standoff)
+    s = motion_waypoints(est, amount, cfg)
+    with _limits_narrowed(kin, cfg.joint_limit_margin):
+        q_path, p_path, stop = motion_path(kin, cfg, est, amount, T_g, approach[-1], s)
+    if stop is not None:
+        return None, (f"the motion from the replayed grasp leaves the workspace or joint limits "
+                      f"at {stop * 100:.0f}% of the path")
+    return Plan(cand, float(roll_deg), T_g, approach[0], approach[-1], approach, s, q_path,
+                p_path), ""
 
 
 def _kink(q_path: np.ndarray, window: int = 3) -> tuple[float, int] | None:
@@ -143,17 +219,15 @@ def _limits_narrowed(kin, margin: float):
 
 
 def _plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, amount: float,
-                    q_start: np.ndarray, seed: int, moving_links, rolls
+                    q_start: np.ndarray, q_seed: np.ndarray, seed: int, moving_links, rolls
                     ) -> tuple[Plan | None, str]:
     kin, cfg = pw.kin, pw.config
-    n_way = max(cfg.min_waypoints, int(np.ceil(abs(amount) / (
-        cfg.waypoint_angle if est.type == "revolute" else cfg.waypoint_distance))))
-    s = np.linspace(0.0, 1.0, n_way + 1)
+    s = motion_waypoints(est, amount, cfg)
     reasons = []
     best = None
     # cheap first test: can the grasp frame's origin get there at all (any orientation)?
     reach = kin.solve_ik(grasp_frame(cand.point, cand.normal, 0.0, cfg.grasp_standoff), "grasp",
-                         q_start, position_only=True, restarts=2, seed=seed)
+                         q_seed, position_only=True, restarts=2, seed=seed)
     if not reach.success:
         return None, (f"out of reach: the grasp frame gets no closer than "
                       f"{1e3 * reach.position_error:.0f} mm")
@@ -188,21 +262,17 @@ def _plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate,
         if not ok:
             reasons.append(f"roll {roll}: approach line not followable")
             continue
-        q_path, p_path = [q], [T_g[:3, 3].copy()]
-        for sk in s[1:]:
-            T = est.motion(sk * amount) @ T_g
-            r = kin.solve_ik(T, "grasp", q, restarts=0)
-            if not r.success or np.max(np.abs(r.q - q)) > cfg.max_waypoint_joint_step:
-                ok = False
-                break
-            q_path.append(r.q)
-            p_path.append(T[:3, 3].copy())
-            q = r.q
-        if not ok:
-            reasons.append(f"roll {roll}: motion leaves the workspace or joint limits at "
-                           f"{sk * 100:.0f}% of the path")
+        hits, at = pw.approach_contacts(approach, cand.point, moving_links, cand.normal)
+        if hits:
+            reasons.append(f"roll {roll}: approach to the grasp meets {hits[0]} at "
+                           f"{100 * at:.0f}% of the way")
             continue
-        kink = _kink(np.array(q_path))
+        q_path, p_path, stop = motion_path(kin, cfg, est, amount, T_g, q, s)
+        if stop is not None:
+            reasons.append(f"roll {roll}: motion leaves the workspace or joint limits at "
+                           f"{stop * 100:.0f}% of the path")
+            continue
+        kink = _kink(q_path)
         if kink is not None and kink[0] > cfg.max_path_kink:
             reasons.append(f"roll {roll}: the motion's joint path kinks at "
                            f"{100 * s[kink[1]]:.0f}% of the path (a joint held at its limit)")
@@ -221,8 +291,8 @@ def _plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate,
             continue
         touch = pw.gripper_contacts(ik.q)
         cost = (touch > 0, float(np.sum(np.abs(pre.q - q_start))))
-        plan = Plan(cand, float(roll), T_g, pre.q, ik.q, np.array(approach), s,
-                    np.array(q_path), np.array(p_path), gripper_contacts=touch)
+        plan = Plan(cand, float(roll), T_g, pre.q, ik.q, np.array(approach), s, q_path, p_path,
+                    gripper_contacts=touch)
         if best is None or cost < best[0]:
             best = (cost, plan)
     if best is None:

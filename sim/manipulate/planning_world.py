@@ -9,7 +9,9 @@ geom. Every question the plan asks is asked there:
   image (:meth:`PlanningWorld.classify_visibility`);
 - free space in front of a candidate (:meth:`PlanningWorld.clear`) and its clearance from the
   parts that do not move with it (:meth:`PlanningWorld.fixed_clearance`);
-- contacts of the arm at a configuration (:meth:`PlanningWorld.arm_contacts`).
+- contacts of the arm at a configuration (:meth:`PlanningWorld.arm_contacts`), along the travel
+  to the pre-grasp pose (:meth:`PlanningWorld.travel_contacts`) and along the approach from there
+  to the grasp (:meth:`PlanningWorld.approach_contacts`).
 """
 
 from __future__ import annotations
@@ -54,6 +56,8 @@ class PlanningWorld:
         mujoco.mj_forward(model, self.data)
         self.kin = robot.load_arm_kinematics(model)
         self.qidx = robot.qpos_indices(model, self.kin)
+        self.q_home = np.array(world.qpos_start[self.qidx], float)
+        """the arm's home configuration (its keyframe): a second start of the plan's IK"""
         self.arm_links = views.arm_link_bodies(model, self.kin)
         arm = robot.arm_spec(model)
         self.flange_body = model.body(arm.prefix + arm.flange_body).id
@@ -289,6 +293,46 @@ class PlanningWorld:
             hits = self.arm_contacts(q_from + f * (q_to - q_from), clearance=clearance)
             if hits:
                 return hits, float(f)
+        return [], 1.0
+
+    def approach_contacts(self, approach, grasp_point, grasp_links=(), grasp_normal=None
+                          ) -> tuple[list[str], float]:
+        """Contacts of the arm along the approach (``approach``: (k, n) joint waypoints from the
+        pre-grasp pose to the grasp pose, followed in straight joint-space lines), checked like
+        the travel (:meth:`travel_contacts`: a configuration every
+        :attr:`PlanningConfig.travel_joint_step`, a pass closer than ``travel_clearance`` to
+        the model counts), its ends left out (each is checked on its own). What the grasp must
+        touch is allowed as at the grasp pose (:meth:`arm_contacts` with ``grasp_point``,
+        ``grasp_links``, ``grasp_normal``): the gripper on the grasped link near the grasp point
+        no deeper than ``gripper_contact_depth``, or grazing its face; anything else -- another
+        link, the grasped link away from the grasp point, the stage -- is a collision.
+
+        Returns
+        -------
+        hits : list of str
+            The contacts at the first configuration that has any; empty when the approach is
+            clear.
+        at : float
+            Where along the approach (0 at the pre-grasp pose, 1 at the grasp pose, by joint-space
+            length; 1.0 when clear).
+        """
+        way = np.atleast_2d(np.asarray(approach, float))
+        if len(way) < 2:
+            return [], 1.0
+        seg = np.max(np.abs(np.diff(way, axis=0)), axis=1)
+        done = np.concatenate([[0.0], np.cumsum(seg)])
+        total = float(done[-1]) or 1.0
+        clearance = min(self.config.travel_clearance, self.contact_margin)
+        point = np.asarray(grasp_point, float)
+        for k in range(len(way) - 1):
+            n = max(1, int(np.ceil(seg[k] / self.config.travel_joint_step)))
+            last = k == len(way) - 2
+            for f in np.arange(1, n + (0 if last else 1)) / n:
+                hits = self.arm_contacts(way[k] + f * (way[k + 1] - way[k]), grasp_point=point,
+                                         grasp_links=grasp_links, grasp_normal=grasp_normal,
+                                         clearance=clearance)
+                if hits:
+                    return hits, float((done[k] + f * seg[k]) / total)
         return [], 1.0
 
 
