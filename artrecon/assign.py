@@ -387,7 +387,6 @@ class _Evidence:
         if not good.any():
             raise ValueError("assign: no segmented match to anchor the links (every match is "
                              "an outlier); the segmentation found no link")
-        self.nearest = match_labels[good][cKDTree(match_src[good]).query(src)[1]]
         if K == 1:
             return
         tree = cKDTree(dst)
@@ -440,11 +439,11 @@ class _Evidence:
         src_spacing = float(np.median(cKDTree(src).query(src, k=2)[0][:, 1]))
         self.graph = _graph(src, config.neighbours, config.neighbour_radius)
         reach = config.match_reach * src_spacing
+        # no match within reach along the surface: no prior (nearest -1, its weight 0)
         d_match, nearest = _matches_along_surface(src, self.graph, match_src[good],
                                                   match_labels[good], K, 5.0 * reach)
-        self.nearest = np.where(np.isfinite(d_match), nearest, self.nearest)
         prior = config.cost_match * np.exp(-d_match / reach)
-        self.base = U + prior[None, :] * (np.arange(K)[:, None] != self.nearest[None, :])
+        self.base = U + prior[None, :] * (np.arange(K)[:, None] != nearest[None, :])
         if base is not None:
             self.static_edges = _static_edges(src, static, config.neighbours,
                                               config.neighbour_radius)
