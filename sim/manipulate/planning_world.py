@@ -285,15 +285,7 @@ class PlanningWorld:
         at : float
             Where along the line (0 at ``q_from``, 1 at ``q_to``; 1.0 when clear).
         """
-        q_from, q_to = np.asarray(q_from, float), np.asarray(q_to, float)
-        span = float(np.max(np.abs(q_to - q_from))) if len(q_from) else 0.0
-        n = max(2, int(np.ceil(span / self.config.travel_joint_step)))
-        clearance = min(self.config.travel_clearance, self.contact_margin)
-        for f in np.arange(1, n) / n:
-            hits = self.arm_contacts(q_from + f * (q_to - q_from), clearance=clearance)
-            if hits:
-                return hits, float(f)
-        return [], 1.0
+        return self._path_contacts([q_from, q_to], min_steps=2)
 
     def approach_contacts(self, approach, grasp_point, grasp_links=(), grasp_normal=None
                           ) -> tuple[list[str], float]:
@@ -316,23 +308,34 @@ class PlanningWorld:
             Where along the approach (0 at the pre-grasp pose, 1 at the grasp pose, by joint-space
             length; 1.0 when clear).
         """
-        way = np.atleast_2d(np.asarray(approach, float))
+        return self._path_contacts(approach, min_steps=1,
+                                   grasp_point=np.asarray(grasp_point, float),
+                                   grasp_links=grasp_links, grasp_normal=grasp_normal)
+
+    def _path_contacts(self, waypoints, min_steps: int, **allowed) -> tuple[list[str], float]:
+        """Contacts of the arm along joint-space waypoints followed in straight lines, its ends
+        left out: on each line a configuration every :attr:`PlanningConfig.travel_joint_step`
+        in any joint (at least ``min_steps`` steps; the waypoints between the lines are
+        checked), a pass closer than ``travel_clearance`` counting; ``allowed`` goes to
+        :meth:`arm_contacts` (the contacts a grasp may make). Returns the contacts at the first
+        configuration that has any (empty: clear) and where it lies (0 to 1 by joint-space
+        length; the line's own fraction when the waypoints do not move; 1.0 when clear)."""
+        way = np.atleast_2d(np.asarray(waypoints, float))
         if len(way) < 2:
             return [], 1.0
-        seg = np.max(np.abs(np.diff(way, axis=0)), axis=1)
+        seg = (np.max(np.abs(np.diff(way, axis=0)), axis=1) if way.shape[1]
+               else np.zeros(len(way) - 1))
         done = np.concatenate([[0.0], np.cumsum(seg)])
-        total = float(done[-1]) or 1.0
+        total = float(done[-1])
         clearance = min(self.config.travel_clearance, self.contact_margin)
-        point = np.asarray(grasp_point, float)
-        for k in range(len(way) - 1):
-            n = max(1, int(np.ceil(seg[k] / self.config.travel_joint_step)))
-            last = k == len(way) - 2
+        for k in range(len(seg)):
+            n = max(min_steps, int(np.ceil(seg[k] / self.config.travel_joint_step)))
+            last = k == len(seg) - 1
             for f in np.arange(1, n + (0 if last else 1)) / n:
-                hits = self.arm_contacts(way[k] + f * (way[k + 1] - way[k]), grasp_point=point,
-                                         grasp_links=grasp_links, grasp_normal=grasp_normal,
-                                         clearance=clearance)
+                hits = self.arm_contacts(way[k] + f * (way[k + 1] - way[k]),
+                                         clearance=clearance, **allowed)
                 if hits:
-                    return hits, float((done[k] + f * seg[k]) / total)
+                    return hits, float((done[k] + f * seg[k]) / total if total > 0 else f)
         return [], 1.0
 
 
