@@ -27,7 +27,7 @@ model's accuracy and completeness (``model``), the camera poses, ``manipulation`
 says what it holds; units are in the names (``_deg``, ``_mm``, ``_s``, ``_n``).
 
 A key the writer had not reached is absent rather than null (a scene that failed in its capture
-has no ``joints`` figures; a worker that died leaves only the error): every record remembers the
+has no ``segmentation``; a worker that died leaves only the error): every record remembers the
 keys it was read with (``present``) and writes those again, so a file read and written again is
 the same file. A record made in code (``present`` None) writes every field.
 
@@ -36,6 +36,7 @@ Any change of a key (added, removed, renamed, another meaning) raises :data:`SCH
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import json
@@ -43,18 +44,11 @@ import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from sim.evaluate.gates import GateCheck
 
 #: The version of the results.json schema this code writes and reads.
 SCHEMA_VERSION = 1
-
-__all__ = ["SCHEMA_VERSION", "CaptureSummary", "FigureSummary", "GroupSummary", "InventedJoint",
-           "JointRecord", "ManipulationRecord", "ManipulationRun", "Meta", "ModelScore",
-           "ModelSummary", "PoseErrors", "RegistrationRecord", "Results", "RunRecord",
-           "RunSpecRecord", "SceneRecord", "SchemaError", "SegmentationRecord", "SurfaceScore",
-           "SweepMeta", "TruthError", "build", "read_results"]
 
 
 class SchemaError(ValueError):
@@ -80,7 +74,7 @@ class _Record:
         if not isinstance(data, dict):
             raise SchemaError(f"{where}: expected an object ({cls.__name__}), got "
                               f"{_kind(data)}")
-        names = _keys(cls)
+        names = [f.name for f in _fields(cls)]
         unknown = [k for k in data if k not in names]
         if unknown:
             raise SchemaError(f"{where}: {unknown[0]!r} is not a key of {cls.__name__} "
@@ -107,11 +101,6 @@ def _fields(cls) -> tuple:
 
 
 @functools.cache
-def _keys(cls) -> tuple[str, ...]:
-    return tuple(f.name for f in _fields(cls))
-
-
-@functools.cache
 def _hints(cls) -> dict:
     return typing.get_type_hints(cls)
 
@@ -123,18 +112,14 @@ def _kind(value) -> str:
 def _load(value, hint, where: str):
     """``value`` checked against the annotation ``hint`` (records built, containers walked)."""
     origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if hint is Any:
-        return value
     if origin in (typing.Union, types.UnionType):
         if value is None and type(None) in args:
             return None
-        options = [a for a in args if a is not type(None)]
-        for option in options[:-1]:
-            try:
+        *first, last = [a for a in args if a is not type(None)]
+        for option in first:
+            with contextlib.suppress(SchemaError):
                 return _load(value, option, where)
-            except SchemaError:
-                pass
-        return _load(value, options[-1], where)
+        return _load(value, last, where)
     if isinstance(hint, type) and dataclasses.is_dataclass(hint):
         if issubclass(hint, _Record):
             return hint.from_json(value, where)
@@ -600,9 +585,7 @@ class Results(_Record):
 def build(results: dict) -> Results:
     """The record of the results a writer holds (plain JSON values: the runner's dicts after
     :func:`sim.evaluate.report.jsonable_scene`), at this code's :data:`SCHEMA_VERSION`."""
-    version = results.get("schema_version", SCHEMA_VERSION)
-    return Results.from_json({"schema_version": version,
-                              **{k: v for k, v in results.items() if k != "schema_version"}})
+    return Results.from_json({"schema_version": SCHEMA_VERSION, **results})
 
 
 def read_results(path: str | Path) -> Results:
