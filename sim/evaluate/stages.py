@@ -36,7 +36,7 @@ from artrecon.register import (
 )
 from artrecon.settings import jsonable
 from artrecon.sfm import camera_poses
-from sim import cache, perturb
+from sim import cache, capture_config, perturb
 from sim.evaluate.config import EvalConfig, StageError
 from sim.scene import Scene
 
@@ -74,7 +74,7 @@ def freeze_code_keys() -> None:
 def _capture_sources() -> str:
     from sim import camera, capture, render, robot, scene, views  # EGL: see the top
 
-    return cache.source_hash([camera, capture, render, robot, scene, views])
+    return cache.source_hash([camera, capture, capture_config, render, robot, scene, views])
 
 
 @functools.cache
