@@ -16,15 +16,15 @@ Top level, one of two layouts (:attr:`Results.layout`):
   "runs": [RunRecord], "summary": [GroupSummary]}``.
 
 :class:`Meta`: versions, seed (``seeds`` in a sweep), views per ring, poses, manipulate,
-perturbation, command, date, scene hashes, the gate table, platform, and ``sweep`` (backend,
-jobs, retries, wall time) when runs ran in parallel. :class:`SceneRecord` is one scene's result
-(:func:`sim.evaluate.runner.evaluate_scene`): ``scene``, ``error`` and ``error_stage``,
-``timings_s``, ``cached_stages``, the captures, the model's summary, ``registration``, the joints
-(:class:`JointRecord`, one per true moving joint), the kinematic tree, ``segmentation``, the
-model's accuracy and completeness (``model``), the camera poses, ``manipulation``
-(:class:`ManipulationRecord`, one :class:`ManipulationRun` per model joint), and the verdict
-(``passed``, ``failed_gates``: :class:`sim.evaluate.gates.GateCheck`). Each field's docstring
-says what it holds; units are in the names (``_deg``, ``_mm``, ``_s``, ``_n``).
+perturbation, capture settings (when set), command, date, scene hashes, the gate table, platform,
+and ``sweep`` (backend, jobs, retries, wall time) when runs ran in parallel. :class:`SceneRecord`
+is one scene's result (:func:`sim.evaluate.runner.evaluate_scene`): ``scene``, ``error`` and
+``error_stage``, ``timings_s``, ``cached_stages``, the captures, the model's summary,
+``registration``, the joints (:class:`JointRecord`, one per true moving joint), the kinematic
+tree, ``segmentation``, the model's accuracy and completeness (``model``), the camera poses,
+``manipulation`` (:class:`ManipulationRecord`, one :class:`ManipulationRun` per model joint), and
+the verdict (``passed``, ``failed_gates``: :class:`sim.evaluate.gates.GateCheck`). Each field's
+docstring says what it holds; units are in the names (``_deg``, ``_mm``, ``_s``, ``_n``).
 
 A key the writer had not reached is absent rather than null (a scene that failed in its capture
 has no ``segmentation``; a worker that died leaves only the error): every record remembers the
@@ -459,6 +459,9 @@ class Meta(_Record):
     manipulate: bool | None = None
     perturbation: dict | None = None
     """the perturbation's changed fields (none: ``{}``)"""
+    capture_settings: dict | None = None
+    """the capture settings off their defaults (``--set capture.FIELD=VALUE``, ``views.``;
+    absent when none is set)"""
     command: str | None = None
     date: str | None = None
     scene_hashes: dict[str, str | None] | None = None

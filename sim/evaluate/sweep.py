@@ -109,6 +109,10 @@ class RunSpec:
         ev = {k: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v
               for k, v in ev.items()}
         ev["perturb"] = self.config.perturb.changed()
+        del ev["capture_settings"]  # named only when set: a default run's spec keeps its keys
+        settings = self.config.capture_settings.changed()
+        if settings:
+            ev["capture_settings"] = settings
         return report._clean({"scene": self.scene, "config": ev, "perturbation": self.perturbation,
                        "strength": self.strength, "label": self.label})
 
