@@ -23,7 +23,7 @@ from artrecon.errors import ArtreconError, InputError, NoMotionError
 from artrecon.export import add_export_parser
 from artrecon.reconstruct import STAGES, reconstruct
 from artrecon.register.cli import add_register_parser
-from artrecon.settings import ReconstructConfig, with_settings
+from artrecon.settings import ReconstructConfig, parse_settings, with_settings
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -76,25 +76,6 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING if getattr(args, "quiet", False) else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     return args.handler(args)
-
-
-def parse_settings(items: list[str]) -> dict[str, float | str]:
-    """``["dense.downsample=1", "sfm.matching=exhaustive"]`` -> ``{"dense.downsample": 1.0,
-    "sfm.matching": "exhaustive"}``: numbers as float, other values as text (InputError if an
-    item is not STAGE.FIELD=VALUE; names, kinds and ranges are checked by
-    artrecon.settings.apply_settings)."""
-    out: dict[str, float | str] = {}
-    for item in items:
-        key, eq, value = item.partition("=")
-        key, value = key.strip(), value.strip()
-        if not eq or not key or not value:
-            raise InputError(f"--set {item!r}: expected STAGE.FIELD=VALUE, e.g. "
-                             "dense.downsample=1")
-        try:
-            out[key] = float(value)
-        except ValueError:
-            out[key] = value
-    return out
 
 
 def _run_reconstruct(args: argparse.Namespace) -> int:

@@ -15,6 +15,7 @@ the defaults (each field's docstring says why) are what the method is measured w
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
@@ -29,8 +30,8 @@ from artrecon.joints import JointConfig
 from artrecon.segment import SegmentationConfig
 from artrecon.sfm import SfMConfig
 
-__all__ = ["Range", "Choice", "RANGES", "ORDERED", "check_setting", "apply_settings",
-           "ReconstructConfig", "with_settings", "jsonable"]
+__all__ = ["Range", "Choice", "RANGES", "ORDERED", "parse_settings", "check_setting",
+           "apply_settings", "ReconstructConfig", "with_settings", "jsonable"]
 
 
 @dataclass(frozen=True)
@@ -215,7 +216,26 @@ ORDERED = (
 )
 
 
-def check_setting(key: str, value, default):
+def parse_settings(items: list[str], example: str = "dense.downsample=1"
+                   ) -> dict[str, float | str]:
+    """``["dense.downsample=1", "sfm.matching=exhaustive"]`` -> ``{"dense.downsample": 1.0,
+    "sfm.matching": "exhaustive"}``: the ``--set STAGE.FIELD=VALUE`` items of a command line,
+    numbers as float, other values as text (InputError, naming ``example``, if an item is not
+    STAGE.FIELD=VALUE; names, kinds and ranges are checked by :func:`apply_settings`)."""
+    out: dict[str, float | str] = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        key, value = key.strip(), value.strip()
+        if not eq or not key or not value:
+            raise InputError(f"--set {item!r}: expected STAGE.FIELD=VALUE, e.g. {example}")
+        try:
+            out[key] = float(value)
+        except ValueError:
+            out[key] = value
+    return out
+
+
+def check_setting(key: str, value, default, ranges: Mapping[str, Range | Choice] = RANGES):
     """``value`` checked against the row of ``key`` and converted to the kind of ``default``.
 
     Parameters
@@ -226,6 +246,9 @@ def check_setting(key: str, value, default):
         As given (the command line passes numbers as float, text as str).
     default
         The field's default value (its kind: bool, int, float or str).
+    ranges : dict
+        The table of rows (default :data:`RANGES`, the reconstruction's; the simulation's
+        capture has its own).
 
     Returns
     -------
@@ -237,10 +260,9 @@ def check_setting(key: str, value, default):
         No row for the field, a value of the wrong kind, not finite, or out of range; the
         message gives the valid range.
     """
-    row = RANGES.get(key)
+    row = ranges.get(key)
     if row is None:
-        raise InputError(f"setting {key!r} cannot be set (it has no checked range in "
-                         "artrecon.settings.RANGES)")
+        raise InputError(f"setting {key!r} cannot be set (it has no checked range)")
     if isinstance(row, Choice):
         if not isinstance(value, str) or value not in row.options:
             raise InputError(f"setting {key}={_num(value)}: {key} takes {row.text()}, default "
@@ -280,8 +302,10 @@ def check_setting(key: str, value, default):
     return number if isinstance(default, int) else float(number)
 
 
-def apply_settings(config, settings: dict):
-    """A copy of a config of stage configs (:class:`ReconstructConfig`)
+def apply_settings(config, settings: dict, ranges: Mapping[str, Range | Choice] = RANGES,
+                   ordered: tuple[tuple[str, str], ...] = ORDERED):
+    """A copy of a config of stage configs (:class:`ReconstructConfig`, or another frozen
+    dataclass whose fields are configs, with its own table ``ranges`` and ``ordered`` pairs)
     with ``settings`` (``{"stage.field": value}``) applied, each checked (:func:`check_setting`);
     InputError for an unknown stage or field, a bad value, or a pair of :data:`ORDERED` fields
     in the wrong order."""
@@ -291,19 +315,20 @@ def apply_settings(config, settings: dict):
         stage, _, name = key.partition(".")
         if stage not in stages or not name:
             raise InputError(f"setting {key!r}: name it stage.field with a stage of "
-                             f"{sorted(stages)} (e.g. dense.downsample)")
+                             f"{sorted(stages)} (e.g. {next(iter(ranges))})")
         sub = stages[stage]
         known = {f.name for f in fields(sub)}
         if name not in known:
             raise InputError(f"setting {key!r}: {type(sub).__name__} has no field {name!r}; its "
                              f"fields are {sorted(known)}")
-        changed.setdefault(stage, {})[name] = check_setting(key, value, getattr(sub, name))
+        changed.setdefault(stage, {})[name] = check_setting(key, value, getattr(sub, name),
+                                                            ranges)
     try:
         out = replace(config, **{stage: replace(stages[stage], **kw)
                                  for stage, kw in changed.items()})
     except ValueError as exc:  # a stage's own check (e.g. DenseConfig.downsample >= 1)
         raise InputError(f"settings {settings}: {exc}") from exc
-    for first, second in ORDERED:
+    for first, second in ordered:
         a = getattr(getattr(out, first.split(".")[0]), first.split(".")[1])
         b = getattr(getattr(out, second.split(".")[0]), second.split(".")[1])
         if a > b and (first in settings or second in settings):

@@ -30,29 +30,32 @@ from pathlib import Path
 import sim  # noqa: F401
 from artrecon.files import write_json_atomic, write_text_atomic
 from sim import evaluate
-from sim.evaluate import gates, sweep
+from sim.evaluate import gates, record, sweep
 from sim.scene import list_scenes
 
 
-def figures(r: dict) -> dict:
+def figures(r: record.SceneRecord) -> dict:
     """The headline figures of one scene's result (worst over its joints)."""
-    rows = r.get("joints") or []
+    rows = r.joints or []
 
     def worst(key):
-        vals = [row.get(key) for row in rows]
+        vals = [getattr(row, key) for row in rows]
         return None if not vals or any(v is None for v in vals) else max(vals)
 
-    man = r.get("manipulation") or {}
-    seg = r.get("segmentation") or {}
     return {"axis_angle_deg": worst("axis_angle_deg"),
-            "axis_position_mm": max((row["axis_position_mm"] for row in rows
-                                     if row.get("axis_position_mm") is not None), default=None),
+            "axis_position_mm": max((row.axis_position_mm for row in rows
+                                     if row.axis_position_mm is not None), default=None),
             "state_error": worst("state_error"),
-            "segmentation_accuracy": r.get("segmentation_accuracy"),
-            "off_object_share": seg.get("off_surface_share"),
-            "manipulation_relative_error": man.get("relative_error"),
-            "tree": None if r.get("tree_correct") is None else bool(r["tree_correct"]),
-            "wall_s": r.get("wall_s")}
+            "segmentation_accuracy": r.segmentation_accuracy,
+            "off_object_share": r.segmentation.off_surface_share if r.segmentation else None,
+            "manipulation_relative_error": (r.manipulation.relative_error if r.manipulation
+                                            else None),
+            "tree": None if r.tree_correct is None else bool(r.tree_correct),
+            "wall_s": r.wall_s}
+
+
+def verdict(r: record.SceneRecord) -> str:
+    return "ERROR" if r.error else ("PASS" if r.passed else "FAIL")
 
 
 def _f(v, d=3) -> str:
@@ -63,7 +66,7 @@ def _f(v, d=3) -> str:
     return f"{v:.{d}f}"
 
 
-def table(runs: dict) -> str:
+def table(runs: dict[str, dict[int, record.SceneRecord]]) -> str:
     """Markdown table of ``{scene: {seed: result}}``."""
     head = ["scene", "seed", "axis deg", "pos mm", "state", "seg", "off obj", "manip err",
             "tree", "wall s", "verdict", "failed gates"]
@@ -71,26 +74,26 @@ def table(runs: dict) -> str:
     for scene, by_seed in runs.items():
         for seed, r in sorted(by_seed.items()):
             f = figures(r)
-            failed = ", ".join(sorted({g["gate"] for g in r.get("failed_gates") or []}))
+            failed = ", ".join(sorted({g.gate for g in r.failed_gates or []}))
             lines.append("| " + " | ".join([
                 scene, str(seed), _f(f["axis_angle_deg"]), _f(f["axis_position_mm"], 2),
                 _f(f["state_error"]), _f(f["segmentation_accuracy"]), _f(f["off_object_share"]),
                 _f(f["manipulation_relative_error"]), _f(f["tree"]), _f(f["wall_s"], 0),
-                "ERROR" if r.get("error") else ("PASS" if r.get("passed") else "FAIL"),
-                (r.get("error") or failed)[:80]]) + " |")
+                verdict(r), (r.error or failed)[:80]]) + " |")
     return "\n".join(lines)
 
 
 def sweep_runs(names: list[str], seeds: list[int], out: Path, cfg: sweep.SweepConfig,
-               argv) -> dict[str, dict[int, dict]]:
-    """``{scene: {seed: result}}`` of the default configuration, run as one sweep into ``out``."""
+               argv) -> dict[str, dict[int, record.SceneRecord]]:
+    """``{scene: {seed: result}}`` of the default configuration, run as one sweep into ``out``
+    (the merged results read through their record, :mod:`sim.evaluate.record`)."""
     specs = [sweep.RunSpec(n, evaluate.EvalConfig(seed=s, progress=False))
              for n in names for s in seeds]
     res = sweep.run_sweep(specs, out, cfg, layout="sweep",
                           command=f"python benchmarks/bench_gates.py {' '.join(argv)}")
-    runs: dict[str, dict[int, dict]] = {n: {} for n in names}
-    for spec, rec in zip(specs, res["runs"], strict=True):
-        runs[spec.scene][spec.config.seed] = rec["result"]
+    runs: dict[str, dict[int, record.SceneRecord]] = {n: {} for n in names}
+    for spec, rec in zip(specs, record.Results.from_json(res).runs, strict=True):
+        runs[spec.scene][spec.config.seed] = rec.result
     return runs
 
 
@@ -117,9 +120,8 @@ def main(argv=None) -> int:
     runs = sweep_runs(names, args.seeds, args.out, cfg, argv)
     for name, by_seed in runs.items():
         for seed, r in by_seed.items():
-            verdict = "ERROR" if r.get("error") else "PASS" if r.get("passed") else "FAIL"
-            print(f"{name} seed {seed}: {verdict} ({r.get('wall_s') or 0:.0f} s)", flush=True)
-    summary = {n: all(r.get("passed") for r in by.values()) for n, by in runs.items()}
+            print(f"{name} seed {seed}: {verdict(r)} ({r.wall_s or 0:.0f} s)", flush=True)
+    summary = {n: all(r.passed for r in by.values()) for n, by in runs.items()}
     repeat = None
     if args.repeat is not None:
         first = runs if args.repeat in args.seeds else sweep_runs(
@@ -143,9 +145,8 @@ def main(argv=None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.out / "bench_gates.md", "\n".join(md) + "\n")
     write_json_atomic(args.out / "bench_gates.json",
-                      {"runs": {n: {str(s): {**figures(r), "passed": r.get("passed"),
-                                             "error": r.get("error"),
-                                             "failed_gates": r.get("failed_gates")}
+                      {"runs": {n: {str(s): {**figures(r), "passed": r.passed, "error": r.error,
+                                             "failed_gates": r.to_json().get("failed_gates")}
                                     for s, r in by.items()} for n, by in runs.items()},
                        "passed_every_seed": summary, "repeat": repeat,
                        "gates": gates.GATES})

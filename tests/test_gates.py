@@ -16,6 +16,7 @@ FAIL and exits non-zero.
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +24,7 @@ import pytest
 
 import sim  # noqa: F401
 from sim import evaluate
-from sim.evaluate import gates, report
+from sim.evaluate import gates, record, report
 from sim.scene import list_scenes, load_scene
 
 pytestmark = pytest.mark.slow
@@ -71,16 +72,21 @@ def out_dir(tmp_path_factory) -> Path:
 def write_report(results: dict[str, dict], out_dir: Path, command: str) -> None:
     """results.json / results.md of the evaluations in ``results``, as the main job writes
     them, merged with the scenes the folder already reports: the scenes of one module run in
-    both xdist workers (tests/conftest.py), each writing the ones it ran (under a lock)."""
+    both xdist workers (tests/conftest.py), each writing the ones it ran (under a lock). A
+    results.json of another schema (a folder kept from older code) is replaced, with a
+    warning, not merged."""
     import fcntl
-    import json
 
     out_dir.mkdir(parents=True, exist_ok=True)
     with open(out_dir / ".results.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         scenes = {}
         if (out_dir / "results.json").is_file():
-            scenes = json.loads((out_dir / "results.json").read_text()).get("scenes", {})
+            try:
+                old = record.read_results(out_dir / "results.json")
+                scenes = {n: r.to_json() for n, r in (old.scenes or {}).items()}
+            except record.SchemaError as err:
+                warnings.warn(f"not merged: {err}", stacklevel=1)
         scenes.update({n: report.jsonable_scene(r) for n, r in results.items()})
         meta = evaluate.run_meta(evaluate.EvalConfig(progress=False), command)
         meta["scene_hashes"] = {n: r.get("scene_hash") for n, r in scenes.items()}

@@ -42,7 +42,7 @@ def light_run(name: str, ev: EvalConfig, out_dir: Path) -> dict:
            "segmentation": {"off_surface_share": 0.01}, "manipulation": None,
            "registration": {"truth_errors": {"pnp": {"rotation_deg": 0.01, "translation_mm": 0.1,
                                                       "scale_percent": 0.01}}},
-           "wall_s": 0.01, "views": ev.views}
+           "wall_s": 0.01}
     res["joints"][0]["passes"] = gates.joint_passes(res["joints"][0])
     v = gates.verdict(res, manipulate=ev.manipulate)
     res.update(passed=v["passed"], failed_gates=v["failed"])
@@ -143,7 +143,7 @@ def test_one_seed_keeps_the_main_jobs_results_schema(tmp_path):
         out[jobs] = sweep.run_sweep(_specs(seeds=(2,)), tmp_path / f"j{jobs}",
                                     sweep.SweepConfig(jobs=jobs, progress=False),
                                     run_fn=light_run)
-        assert set(out[jobs]) == {"scenes", "meta"}
+        assert set(out[jobs]) == {"schema_version", "scenes", "meta"}
         assert list(out[jobs]["scenes"]) == ["pliers", "truck"]
         assert out[jobs]["meta"]["seed"] == 2
         assert (tmp_path / f"j{jobs}" / "ran-2.txt").is_file()  # OUT is each run's folder

@@ -1,6 +1,8 @@
 """Eye-in-hand capture: the arm photographs the object from all sides.
 
-``python -m sim.capture SCENE --config a|b --out DIR [--views N] [--seed S]`` writes one image set::
+``python -m sim.capture SCENE --config a|b --out DIR [--views N] [--seed S] [--set
+capture.FIELD=VALUE] [--set views.FIELD=VALUE]`` (the tunables: :mod:`sim.capture_config`) writes
+one image set::
 
     DIR/images/000.png ...        what the wrist camera saw (RGB)
     DIR/cameras.json              intrinsics K, size, per image the arm's joint angles, the
@@ -19,13 +21,12 @@ Rooms: :mod:`~sim.capture.image_set` (:func:`capture`, one image set),
 :mod:`~sim.capture.plan` (the view plan and its cache), :mod:`~sim.capture.arm` (the arm's motion
 in physics), :mod:`~sim.capture.files` (the PNGs, label codes and the output folder),
 :mod:`~sim.capture.rig` (the held scene, the arm and its camera),
-:mod:`~sim.capture.capture_config` (:class:`CaptureConfig`: the tunables of the arm's motion, the
-object's drift and the fresh view; the view plan's are in :class:`sim.views.ViewPlanConfig`),
-:mod:`~sim.capture.cli`.
+:mod:`~sim.capture.cli`. The tunables of the arm's motion, the object's drift and the fresh view
+are :class:`CaptureConfig`, in :mod:`sim.capture_config` (outside this package, so that what
+holds them loads without pyrender; the view plan's are in :class:`sim.views.ViewPlanConfig`).
 """
 
 from sim.capture.arm import min_jerk, servo_gains
-from sim.capture.capture_config import CaptureConfig
 from sim.capture.cli import main
 from sim.capture.files import (
     DEPTH_PNG_SCALE,
@@ -39,6 +40,7 @@ from sim.capture.fresh import FreshView, capture_fresh_view
 from sim.capture.image_set import MIN_CAPTURED_VIEWS, CaptureResult, capture
 from sim.capture.plan import plan_inputs, plan_sources, plan_views
 from sim.capture.rig import CONFIGS, CaptureError
+from sim.capture_config import CaptureConfig
 
 __all__ = [
     "CONFIGS", "DEPTH_PNG_SCALE", "LABEL_PNG_ARM", "LABEL_PNG_BACKGROUND", "LABEL_PNG_STAGE",

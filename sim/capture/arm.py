@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 
 from sim import robot, views
-from sim.capture.capture_config import CaptureConfig
+from sim.capture_config import CaptureConfig
 
 #: Peak of the minimum-jerk profile's speed, in units of (distance / duration): 15/8, a property
 #: of the profile (:func:`min_jerk`), not a tunable; the tunables of the motion are fields of

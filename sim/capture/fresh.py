@@ -15,9 +15,9 @@ import numpy as np
 from artrecon.files import make_work_dir
 from sim import render, robot, views
 from sim.capture.arm import Arm
-from sim.capture.capture_config import CaptureConfig
 from sim.capture.files import as_list, check_out_dir, png_bytes
 from sim.capture.rig import CaptureError, make_rig, true_camera_pose
+from sim.capture_config import CaptureConfig
 
 
 @dataclass

@@ -30,7 +30,6 @@ from artrecon.files import make_work_dir, publish_dir
 from artrecon.geometry import rotation_angle
 from sim import render, robot, views
 from sim.capture.arm import Arm
-from sim.capture.capture_config import CaptureConfig
 from sim.capture.files import (
     DEPTH_PNG_SCALE,
     LABEL_PNG_ARM,
@@ -46,6 +45,7 @@ from sim.capture.files import (
 )
 from sim.capture.plan import plan_views
 from sim.capture.rig import CONFIGS, CaptureError, Rig, make_rig, true_camera_pose
+from sim.capture_config import CaptureConfig
 from sim.scene import Scene
 
 log = logging.getLogger(__name__)

@@ -3,9 +3,10 @@
 Rooms: :mod:`~sim.evaluate.config` (EvalConfig), :mod:`~sim.evaluate.stages` (the cached stages),
 :mod:`~sim.evaluate.runner` (one scene, a run), :mod:`~sim.evaluate.scoring` (ground truth, after
 the fact), :mod:`~sim.evaluate.gates` (the one gate table and verdict),
-:mod:`~sim.evaluate.report` (results.json, results.md, pictures), :mod:`~sim.evaluate.sweep`
-(many runs -- scenes x seeds x perturbations -- on worker processes or Ray, merged),
-:mod:`~sim.evaluate.cli`.
+:mod:`~sim.evaluate.report` (results.json, results.md, pictures), :mod:`~sim.evaluate.record`
+(the typed record that is results.json's schema, with its ``schema_version``),
+:mod:`~sim.evaluate.sweep` (many runs -- scenes x seeds x perturbations -- on worker processes or
+Ray, merged), :mod:`~sim.evaluate.cli`.
 """
 
 from sim.evaluate.cli import main

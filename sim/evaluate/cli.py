@@ -11,7 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from artrecon.errors import InputError
+from artrecon.settings import parse_settings
 from sim import perturb
+from sim.capture_config import SET_EXAMPLE, SET_HELP, capture_settings
 from sim.evaluate import report, sweep, sweep_report
 from sim.evaluate.checks import check_run
 from sim.evaluate.config import POSE_SOURCES, EvalConfig
@@ -120,6 +122,8 @@ def parser() -> argparse.ArgumentParser:
                    help="camera poses: 'fk' the arm's forward kinematics, held fixed and checked "
                         "against the images; 'images' SfM from the images alone (the photo "
                         f"route); default {default.poses!r}")
+    p.add_argument("--set", dest="settings", action="append", default=[],
+                   metavar="capture.FIELD=VALUE|views.FIELD=VALUE", help=SET_HELP)
     p.add_argument("--no-manipulate", action="store_true", help="skip the manipulation")
     p.add_argument("--validate-only", action="store_true",
                    help="only compile and check the scenes and print their ground truth")
@@ -156,10 +160,13 @@ def sweep_from_args(args: argparse.Namespace) -> sweep.SweepConfig:
 
 
 def config_from_args(args: argparse.Namespace) -> EvalConfig:
-    """The run's :class:`EvalConfig` from parsed arguments (ValueError: a bad value)."""
+    """The run's :class:`EvalConfig` from parsed arguments (ValueError: a bad value, an
+    InputError for a bad ``--set``)."""
     return EvalConfig(views=args.views, seed=args.seed, poses=args.poses,
                       manipulate=not args.no_manipulate, progress=not args.quiet,
-                      perturb=perturb.from_args(args))
+                      perturb=perturb.from_args(args),
+                      capture_settings=capture_settings(parse_settings(args.settings,
+                                                                       SET_EXAMPLE)))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from sim import perturb
+from sim.capture_config import CaptureSettings
 
 # the capture's default and fewest views per full ring
-from sim.views import DEFAULT_VIEWS_PER_RING, MIN_VIEWS
+from sim.views import DEFAULT_VIEWS_PER_RING, MIN_VIEWS, ViewPlanConfig
 
 #: Where the cameras can come from (:attr:`EvalConfig.poses`).
 POSE_SOURCES = ("fk", "images")
@@ -38,6 +39,12 @@ class EvalConfig:
             raise ValueError(f"EvalConfig.poses must be one of {POSE_SOURCES}, got {self.poses!r}")
         if self.views < MIN_VIEWS:
             raise ValueError(f"EvalConfig.views must be at least {MIN_VIEWS}, got {self.views}")
+        plan = self.capture_settings.views
+        if (plan.views_per_ring, plan.seed) != (ViewPlanConfig().views_per_ring,
+                                                ViewPlanConfig().seed):
+            raise ValueError("EvalConfig.capture_settings.views: its views per ring and seed "
+                             "are EvalConfig.views and EvalConfig.seed; leave them at their "
+                             "defaults")
     manipulate: bool = True
     """run the manipulation stage"""
     progress: bool = True
@@ -47,6 +54,16 @@ class EvalConfig:
     mostly single-threaded: planning, physics, PNG writing); the images are the same"""
     perturb: perturb.Perturbation = field(default_factory=perturb.Perturbation)
     """perturbations of a robustness run (sim.perturb; default none)"""
+    capture_settings: CaptureSettings = field(default_factory=CaptureSettings)
+    """the captures' and the fresh view's tunables (sim.capture_config: the arm's motion, the
+    object's drift, the fresh view, the view plan's tunables; ``--set capture.FIELD=VALUE``,
+    ``--set views.FIELD=VALUE``); the views per ring and the seed are :attr:`views` and
+    :attr:`seed`"""
+
+    def view_plan(self) -> ViewPlanConfig:
+        """The view plan of the captures and of the fresh view: :attr:`capture_settings`'
+        with :attr:`views` per ring and :attr:`seed`."""
+        return replace(self.capture_settings.views, views_per_ring=self.views, seed=self.seed)
 
 
 class StageError(RuntimeError):

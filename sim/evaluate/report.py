@@ -1,4 +1,5 @@
-"""The evaluation report: ``results.json``, ``results.md`` and the terminal table.
+"""The evaluation report: ``results.json`` (its schema: :mod:`sim.evaluate.record`), ``results.md``
+and the terminal table.
 
 The pictures are :mod:`sim.evaluate.pictures`, the merged report of a sweep
 :mod:`sim.evaluate.sweep_report`. Every file is written whole or not at all (:mod:`artrecon.files`).
@@ -13,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from artrecon.files import write_bytes_atomic, write_json_atomic
+from sim.evaluate import record
 
 log = logging.getLogger(__name__)
 
@@ -50,11 +52,15 @@ def jsonable_scene(result: dict) -> dict:
     return _clean({k: v for k, v in result.items() if not k.startswith("_")})
 
 
-def write_results(results: dict, out_dir: Path) -> None:
-    """``results.json`` and ``results.md`` in ``out_dir``."""
+def write_results(results: dict, out_dir: Path) -> dict:
+    """``results.json`` and ``results.md`` in ``out_dir``, both from the typed record of
+    ``results`` (:mod:`sim.evaluate.record`: SchemaError, nothing written, for a key it does not
+    hold). Returns the JSON written."""
     out_dir = Path(out_dir)
-    write_json_atomic(out_dir / "results.json", _clean(results))
-    write_bytes_atomic(out_dir / "results.md", markdown(results).encode())
+    data = record.build(_clean(results)).to_json()
+    write_json_atomic(out_dir / "results.json", data)
+    write_bytes_atomic(out_dir / "results.md", markdown(data).encode())
+    return data
 
 
 def _f(v, digits: int = 2, unit: str = "") -> str:

@@ -238,10 +238,12 @@ def _manipulations(scene, registered, result, q_start, keys, ev, cache_root,
 
 
 def run_meta(ev: EvalConfig, command: str) -> dict:
-    """The ``meta`` record of a results.json: versions, settings, command, date, platform
-    (``scene_hashes`` is filled in as scenes run)."""
+    """The ``meta`` record of a results.json: versions, settings (the capture settings only when
+    set), command, date, platform (``scene_hashes`` is filled in as scenes run)."""
+    settings = ev.capture_settings.changed()
     return {"versions": versions(), "seed": ev.seed, "views_per_ring": ev.views,
             "poses": ev.poses, "manipulate": ev.manipulate,
-            "perturbation": ev.perturb.changed(), "command": command,
+            "perturbation": ev.perturb.changed(),
+            **({"capture_settings": settings} if settings else {}), "command": command,
             "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "scene_hashes": {}, "gates": gates.GATES, "platform": platform.platform()}

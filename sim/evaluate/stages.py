@@ -36,7 +36,7 @@ from artrecon.register import (
 )
 from artrecon.settings import jsonable
 from artrecon.sfm import camera_poses
-from sim import cache, perturb
+from sim import cache, capture_config, perturb
 from sim.evaluate.config import EvalConfig, StageError
 from sim.scene import Scene
 
@@ -74,7 +74,7 @@ def freeze_code_keys() -> None:
 def _capture_sources() -> str:
     from sim import camera, capture, render, robot, scene, views  # EGL: see the top
 
-    return cache.source_hash([camera, capture, render, robot, scene, views])
+    return cache.source_hash([camera, capture, capture_config, render, robot, scene, views])
 
 
 @functools.cache
@@ -113,21 +113,31 @@ def _manipulate_sources() -> str:
                               planning_world, world, robot, scene, views])
 
 
+def _settings_inputs(ev: EvalConfig) -> dict:
+    """The capture settings off their defaults, for the keys of the stages they change (none at
+    the defaults: the keys of a default run keep their form)."""
+    changed = ev.capture_settings.changed()
+    return {"capture_settings": jsonable(changed)} if changed else {}
+
+
 def _capture_inputs(scene: Scene, configuration: str, ev: EvalConfig, scene_hash: str) -> dict:
     return {"scene": scene.name, "scene_hash": scene_hash, "config": configuration,
             "views": ev.views, "seed": ev.seed, "version": artrecon.__version__,
-            "code": _capture_sources(),
+            "code": _capture_sources(), **_settings_inputs(ev),
             **perturb.capture_inputs(scene, ev.perturb, configuration)}
 
 
 def capture_stage(scene: Scene, configuration: str, ev: EvalConfig, cache_root: Path,
                   scene_hash: str) -> tuple[Path, dict, bool]:
-    """Capture one configuration (cached). Returns the image set folder, stage metadata, hit."""
+    """Capture one configuration (cached), with the evaluation's view plan
+    (:meth:`EvalConfig.view_plan`) and capture settings, which key it with the scene, views and
+    seed. Returns the image set folder, stage metadata, hit."""
     from sim.capture import capture  # EGL: see the top
 
     def build(folder: Path) -> dict:
         res = capture(perturb.capture_scene(scene, ev.perturb, configuration), configuration,
-                      folder / "set", n_views=ev.views, seed=ev.seed, progress=ev.progress,
+                      folder / "set", view_plan=ev.view_plan(),
+                      capture_config=ev.capture_settings.capture, progress=ev.progress,
                       plan_cache=cache_root)  # the view plan outlives code edits of the capture
         return {"n_planned": res.n_planned, "n_captured": res.n_captured,
                 "plan_cached": res.plan_cached,
@@ -302,20 +312,24 @@ def last_arm_pose(capture_set: Path) -> list[float]:
 def fresh_view_stage(scene: Scene, capture_set: Path, capture_key: str, ev: EvalConfig,
                      cache_root: Path) -> tuple[Path, dict, bool]:
     """One image after the reconstruction, from an arm pose in neither image set (cached):
-    :func:`sim.capture.capture_fresh_view` from where the capture of A left the arm, its pose
-    file perturbed like the capture's (robustness runs). Returns its folder, metadata, hit."""
+    :func:`sim.capture.capture_fresh_view` from where the capture of A left the arm, with the
+    evaluation's capture settings and view plan (:meth:`EvalConfig.view_plan`) like the
+    captures, its pose file perturbed like the capture's (robustness runs). Returns its folder,
+    metadata, hit."""
     from sim.capture import capture_fresh_view  # EGL: see the top
 
     q_start = last_arm_pose(capture_set)
 
     def build(folder: Path) -> dict:
         fv = capture_fresh_view(perturb.capture_scene(scene, ev.perturb, "a"), "a", q_start,
-                                folder / "fresh", seed=ev.seed)
+                                folder / "fresh", seed=ev.seed,
+                                capture_config=ev.capture_settings.capture,
+                                plan_config=ev.view_plan())
         perturb.perturb_fresh_pose(fv.pose_file, scene, ev.perturb, ev.seed)
         return {"q": fv.q.tolist()}  # the arm's configuration now: the manipulation's start
 
     inputs = {"capture": capture_key, "seed": ev.seed, "code": _capture_sources(),
-              "perturb": ev.perturb.changed()}
+              "perturb": ev.perturb.changed(), **_settings_inputs(ev)}
     folder, meta, hit = cache.cached_stage(cache_root, "fresh_view", inputs, build)
     return folder / "fresh", meta, hit
 

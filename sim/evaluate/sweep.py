@@ -109,6 +109,10 @@ class RunSpec:
         ev = {k: dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v
               for k, v in ev.items()}
         ev["perturb"] = self.config.perturb.changed()
+        del ev["capture_settings"]  # named only when set: a default run's spec keeps its keys
+        settings = self.config.capture_settings.changed()
+        if settings:
+            ev["capture_settings"] = settings
         return report._clean({"scene": self.scene, "config": ev, "perturbation": self.perturbation,
                        "strength": self.strength, "label": self.label})
 
@@ -383,7 +387,8 @@ class _State:
         return sum(r["status"] in ("failed", "died") for r in self.records.values())
 
     def write(self) -> dict:
-        """The merged results.json, results.md and pictures, from the records so far."""
+        """The merged results.json, results.md and pictures, from the records so far; returns
+        the JSON written (:mod:`sim.evaluate.record`)."""
         base = self.specs[0].config
         meta = run_meta(base, self.command)
         if self.sweep.backend != "local" or (self.sweep.jobs or 1) > 1 or self.layout == "sweep":
@@ -396,8 +401,7 @@ class _State:
         if self.layout == "scenes":
             results = {"scenes": {rec["result"]["scene"]: rec["result"] for rec in done},
                        "meta": meta}
-            report.write_results(results, self.out)
-            return results
+            return report.write_results(results, self.out)
         meta["seeds"] = sorted({s.config.seed for s in self.specs})
         del meta["seed"]
         if self.perturbations:
@@ -411,8 +415,7 @@ class _State:
                        "dir": os.path.relpath(self.run_dir(spec), self.out), "result": None}
             runs.append(rec)
         results = {"meta": meta, "runs": runs, "summary": sweep_report.sweep_summary(runs)}
-        sweep_report.write_sweep(results, self.out)
-        return results
+        return sweep_report.write_sweep(results, self.out)
 
 
 def run(names: list[str], ev: EvalConfig, out_dir: Path, argv: list[str] | None = None) -> dict:

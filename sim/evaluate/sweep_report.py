@@ -7,6 +7,7 @@ import logging
 from pathlib import Path
 
 from artrecon.files import write_bytes_atomic, write_json_atomic
+from sim.evaluate import record
 from sim.evaluate.pictures import (
     _median,
     _write_png,
@@ -169,10 +170,12 @@ def sweep_markdown(results: dict) -> str:
     return "\n".join(out) + "\n"
 
 
-def write_sweep(results: dict, out_dir: Path) -> None:
-    """A sweep's merged ``results.json``, ``results.md`` and pictures in ``out_dir``."""
+def write_sweep(results: dict, out_dir: Path) -> dict:
+    """A sweep's merged ``results.json``, ``results.md`` and pictures in ``out_dir``, from the
+    typed record of ``results`` (:mod:`sim.evaluate.record`). Returns the JSON written."""
     out_dir = Path(out_dir)
-    write_json_atomic(out_dir / "results.json", _clean(results))
+    results = record.build(_clean(results)).to_json()
+    write_json_atomic(out_dir / "results.json", results)
     try:
         _write_png(out_dir / "sweep_errors.png", draw_sweep_errors(results))
         for name, axis in (results["meta"].get("perturbations") or {}).items():
@@ -180,3 +183,4 @@ def write_sweep(results: dict, out_dir: Path) -> None:
     except Exception as err:  # pictures must not sink the numbers
         log.warning("sweep pictures failed: %s", err)
     write_bytes_atomic(out_dir / "results.md", sweep_markdown(results).encode())
+    return results

@@ -1,0 +1,601 @@
+"""The typed record of ``results.json``: the file's schema, as frozen dataclasses.
+
+The writers (:func:`sim.evaluate.report.write_results`, :func:`sim.evaluate.sweep_report.
+write_sweep`) build the file from a :class:`Results` (:meth:`Results.to_json`); whatever reads a
+results.json reads it through :meth:`Results.from_json` (:func:`read_results` for a file), which
+refuses a file of another :data:`SCHEMA_VERSION` and names any key or value the record does not
+hold. The record holds what the runner computes, nothing is recomputed here.
+
+Schema (``schema_version`` 1)
+-----------------------------
+Top level, one of two layouts (:attr:`Results.layout`):
+
+- ``scenes`` (one run per scene, the main job): ``{"schema_version", "scenes": {name:
+  SceneRecord}, "meta": Meta}``;
+- ``sweep`` (several runs of a scene: seeds, perturbations): ``{"schema_version", "meta": Meta,
+  "runs": [RunRecord], "summary": [GroupSummary]}``.
+
+:class:`Meta`: versions, seed (``seeds`` in a sweep), views per ring, poses, manipulate,
+perturbation, capture settings (when set), command, date, scene hashes, the gate table, platform,
+and ``sweep`` (backend, jobs, retries, wall time) when runs ran in parallel. :class:`SceneRecord`
+is one scene's result (:func:`sim.evaluate.runner.evaluate_scene`): ``scene``, ``error`` and
+``error_stage``, ``timings_s``, ``cached_stages``, the captures, the model's summary,
+``registration``, the joints (:class:`JointRecord`, one per true moving joint), the kinematic
+tree, ``segmentation``, the model's accuracy and completeness (``model``), the camera poses,
+``manipulation`` (:class:`ManipulationRecord`, one :class:`ManipulationRun` per model joint), and
+the verdict (``passed``, ``failed_gates``: :class:`sim.evaluate.gates.GateCheck`). Each field's
+docstring says what it holds; units are in the names (``_deg``, ``_mm``, ``_s``, ``_n``).
+
+A key the writer had not reached is absent rather than null (a scene that failed in its capture
+has no ``segmentation``; a worker that died leaves only the error): every record remembers the
+keys it was read with (``present``) and writes those again, so a file read and written again is
+the same file. A record made in code (``present`` None) writes every field.
+
+Any change of a key (added, removed, renamed, another meaning) raises :data:`SCHEMA_VERSION`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+import json
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from sim.evaluate.gates import GateCheck
+
+#: The version of the results.json schema this code writes and reads.
+SCHEMA_VERSION = 1
+
+
+class SchemaError(ValueError):
+    """A results.json this code cannot read: another schema_version, or a key or value the
+    record does not hold (the message names where)."""
+
+
+# ---------------------------------------------------------------------------- the machinery
+
+
+@dataclass(frozen=True, kw_only=True)
+class _Record:
+    """A JSON object of results.json: its fields are its keys."""
+
+    present: frozenset[str] | None = field(default=None, repr=False)
+    """the keys the record was read with (written again, in field order); None: every field"""
+
+    @classmethod
+    def from_json(cls, data, where: str = ""):
+        """The record of a JSON object; SchemaError for an unknown key, a missing required one
+        or a value of another kind."""
+        where = where or cls.__name__
+        if not isinstance(data, dict):
+            raise SchemaError(f"{where}: expected an object ({cls.__name__}), got "
+                              f"{_kind(data)}")
+        names = [f.name for f in _fields(cls)]
+        unknown = [k for k in data if k not in names]
+        if unknown:
+            raise SchemaError(f"{where}: {unknown[0]!r} is not a key of {cls.__name__} "
+                              f"(results.json schema_version {SCHEMA_VERSION}); its keys are "
+                              f"{', '.join(names)}")
+        missing = [f.name for f in _fields(cls) if f.name not in data
+                   and f.default is dataclasses.MISSING]
+        if missing:
+            raise SchemaError(f"{where}: {cls.__name__} needs {', '.join(missing)}")
+        hints = _hints(cls)
+        values = {k: _load(v, hints[k], f"{where}.{k}") for k, v in data.items()}
+        present = None if set(data) == set(names) else frozenset(data)
+        return cls(**values, present=present)
+
+    def to_json(self) -> dict:
+        """The JSON object: the present keys in field order."""
+        return {f.name: _dump(getattr(self, f.name)) for f in _fields(type(self))
+                if self.present is None or f.name in self.present}
+
+
+@functools.cache
+def _fields(cls) -> tuple:
+    return tuple(f for f in dataclasses.fields(cls) if f.name != "present")
+
+
+@functools.cache
+def _hints(cls) -> dict:
+    return typing.get_type_hints(cls)
+
+
+def _kind(value) -> str:
+    return "null" if value is None else type(value).__name__
+
+
+def _load(value, hint, where: str):
+    """``value`` checked against the annotation ``hint`` (records built, containers walked)."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        *first, last = [a for a in args if a is not type(None)]
+        for option in first:
+            with contextlib.suppress(SchemaError):
+                return _load(value, option, where)
+        return _load(value, last, where)
+    if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+        if issubclass(hint, _Record):
+            return hint.from_json(value, where)
+        return _plain_dataclass(hint, value, where)
+    base = origin or hint
+    if not isinstance(value, base) or (isinstance(value, bool) and base is not bool):
+        if not (base is float and isinstance(value, int) and not isinstance(value, bool)):
+            raise SchemaError(f"{where}: expected {getattr(base, '__name__', base)}, got "
+                              f"{_kind(value)} {value!r:.60}")
+    if base is list and args:
+        return [_load(v, args[0], f"{where}[{i}]") for i, v in enumerate(value)]
+    if base is dict and args:
+        return {k: _load(v, args[1], f"{where}[{k!r}]") for k, v in value.items()}
+    return value
+
+
+def _plain_dataclass(cls, value, where: str):
+    """A dataclass of another module (:class:`GateCheck`): every field, no other key."""
+    if not isinstance(value, dict):
+        raise SchemaError(f"{where}: expected an object ({cls.__name__}), got {_kind(value)}")
+    names = [f.name for f in dataclasses.fields(cls)]
+    if sorted(value) != sorted(names):
+        raise SchemaError(f"{where}: {cls.__name__} has the keys {', '.join(names)}, got "
+                          f"{', '.join(value)}")
+    hints = _hints(cls)
+    return cls(**{k: _load(value[k], hints[k], f"{where}.{k}") for k in names})
+
+
+def _dump(value):
+    if isinstance(value, _Record):
+        return value.to_json()
+    if dataclasses.is_dataclass(value):
+        return {f.name: _dump(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, list):
+        return [_dump(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _dump(v) for k, v in value.items()}
+    return value
+
+
+# ---------------------------------------------------------------------------- a scene
+
+
+@dataclass(frozen=True, kw_only=True)
+class JointRecord(_Record):
+    """One true moving joint against the estimate paired with it
+    (:func:`sim.evaluate.scoring.score_joints`); the estimate's figures are null when none was
+    paired."""
+
+    name: str
+    """the true joint"""
+    type_true: str | None = None
+    type_estimated: str | None = None
+    estimated_joint: str | None = None
+    """the model's joint paired with it (null: missed)"""
+    type_correct: bool | None = None
+    axis_angle_deg: float | None = None
+    axis_position_mm: float | None = None
+    """revolute joints: distance between the estimated and the true axis"""
+    state_error: float | None = None
+    """in :attr:`state_error_unit`"""
+    state_error_unit: str | None = None
+    """``deg`` (revolute) or ``mm`` (prismatic), also of the two states"""
+    state_true: float | None = None
+    state_estimated: float | None = None
+    angle_to_table_normal_deg: float | None = None
+    angle_to_table_normal_true_deg: float | None = None
+    confidence: dict | None = None
+    """artrecon's own evidence for the estimate (artrecon.confidence)"""
+    links_swapped: bool | None = None
+    """the model took the true child as the fixed link (the state is compared inverted)"""
+    paired_by_links: bool | None = None
+    """paired by the links it joins (else by axis geometry)"""
+    passes: bool | None = None
+    """meets every joint gate"""
+
+
+@dataclass(frozen=True, kw_only=True)
+class InventedJoint(_Record):
+    """An estimated joint paired with no true one."""
+
+    name: str
+    type: str | None = None
+    angle_to_table_normal_deg: float | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class CaptureSummary(_Record):
+    """One configuration's capture (``capture_a``, ``capture_b``)."""
+
+    n_planned: int | None = None
+    n_captured: int | None = None
+    max_fk_position_error_mm: float | None = None
+    max_fk_rotation_error_deg: float | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class ModelSummary(_Record):
+    """The reconstruction's size (its metadata); per configuration where keyed ``a``/``b``."""
+
+    links: int | None = None
+    joints: int | None = None
+    registered_images: dict[str, int] | None = None
+    num_images: dict[str, int] | None = None
+    sparse_points: dict[str, int] | None = None
+    dense_points: dict[str, int] | None = None
+    matches: int | None = None
+    match_outliers: int | None = None
+    pose_agreement: dict | None = None
+    """per configuration, how well the FK poses agree with the images (artrecon.sfm)"""
+
+
+@dataclass(frozen=True, kw_only=True)
+class TruthError(_Record):
+    """A registration route against the true registration."""
+
+    rotation_deg: float | None = None
+    translation_mm: float | None = None
+    """RMS over the model's points ..."""
+    max_translation_mm: float | None = None
+    """... and largest"""
+    scale_percent: float | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class RegistrationRecord(_Record):
+    """The registration: artrecon's report (artrecon.register, ``registration.json``) and each
+    route's error against the truth."""
+
+    chosen_route: str | None = None
+    format: str | None = None
+    route: str | None = None
+    T_robot_model: dict | None = None
+    """rotation, translation, scale of the chosen similarity"""
+    scale_m_per_unit: float | None = None
+    routes: dict[str, dict] | None = None
+    """per route its report (inliers, residuals, images used) and similarity"""
+    agreement: dict | None = None
+    """how far the two routes lie apart, and the limits"""
+    truth_errors: dict[str, TruthError] | None = None
+    """per route (``camera_centres``, ``pnp``)"""
+
+
+@dataclass(frozen=True, kw_only=True)
+class SegmentationRecord(_Record):
+    """The model's points against the rendered link labels (:func:`sim.evaluate.scoring.
+    score_scene`)."""
+
+    method: str | None = None
+    points: int | None = None
+    off_surface_share: float | None = None
+    """points no view holds on the object (left out of the accuracy)"""
+    scored_in: dict[str, int] | None = None
+    """points scored in configuration ``a`` and ``b``"""
+    accuracy_in: dict[str, float | None] | None = None
+    accuracy_nearest_surface_at_a: float | None = None
+    """the earlier figure: every point at A, nearest true surface"""
+    model_links: int | None = None
+    true_links: int | None = None
+    points_per_link: list[int] | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class SurfaceScore(_Record):
+    """Accuracy and completeness on a part of the true surface."""
+
+    accuracy_median_mm: float | None = None
+    accuracy_p90_mm: float | None = None
+    completeness: float | None = None
+    n_samples: int | None = None
+    n_points: int | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class ModelScore(_Record):
+    """The model's points against the true surfaces: overall, on the side hidden from the last
+    view of A and on the side it saw."""
+
+    accuracy_median_mm: float | None = None
+    accuracy_p90_mm: float | None = None
+    completeness: float | None = None
+    """share of true surface samples within ``radius_mm`` of a model point"""
+    hidden: SurfaceScore | None = None
+    visible: SurfaceScore | None = None
+    hidden_share_of_surface: float | None = None
+    final_view: str | None = None
+    n_samples: int | None = None
+    radius_mm: float | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class PoseErrors(_Record):
+    """Camera poses of A (SfM, registered) against the true ones."""
+
+    position_median_mm: float | None = None
+    position_max_mm: float | None = None
+    rotation_median_deg: float | None = None
+    rotation_max_deg: float | None = None
+    n: int | None = None
+    images_of_a: int | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class ManipulationRun(_Record):
+    """One model joint moved as the model says, scored along the true joint
+    (:func:`sim.evaluate.scoring.score_manipulation`)."""
+
+    model_joint: str
+    true_joint: str | None = None
+    error: str | None = None
+    unit: str | None = None
+    """``deg`` or ``mm``, of requested and achieved"""
+    requested: float | None = None
+    grasp_point: list[float] | None = None
+    grasp_normal: list[float] | None = None
+    grasp_hidden: bool | None = None
+    grasp_visibility: str | None = None
+    grasp_body: str | None = None
+    grasp_lost: bool | None = None
+    grasp_lost_at: float | None = None
+    planned_in: str | None = None
+    arm_contacts: list | None = None
+    grasp_roll_deg: float | None = None
+    candidates: dict | None = None
+    """grasp candidates: how many, hidden, usable, rejected"""
+    peak_force_n: float | None = None
+    rms_force_n: float | None = None
+    peak_torque_nm: float | None = None
+    grip_limits: dict | None = None
+    tracking_max_deg: float | None = None
+    path_error_max_mm: float | None = None
+    moved: dict[str, float] | None = None
+    """every joint of the scene that moved, by how much (rad or m)"""
+    achieved: float | None = None
+    relative_error: float | None = None
+    needed_force_n: float | None = None
+    """the force the true joint needs with this grasp and motion"""
+    force_at_gate_tolerance_n: float | None = None
+    reference: dict | None = None
+    """the replays along the true joint that give the two forces above"""
+    force_limit_n: float | None = None
+    passes: bool | None = None
+    reason: str | None = None
+    """why an invented joint's run has no figures"""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ManipulationRecord(_Record):
+    """Every joint of the model moved in turn, and the worst figures over them."""
+
+    runs: list[ManipulationRun] | None = None
+    joints_moved: int | None = None
+    requested: float | None = None
+    achieved: float | None = None
+    unit: str | None = None
+    relative_error: float | None = None
+    peak_force_n: float | None = None
+    grasp_hidden_any: bool | None = None
+    passes: bool | None = None
+    reason: str | None = None
+    q_start: list[float] | None = None
+    q_start_from: str | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class SceneRecord(_Record):
+    """One scene's result (:func:`sim.evaluate.runner.evaluate_scene`, or a worker's failure
+    that stands for it)."""
+
+    scene: str
+    error: str | None = None
+    """``stage: Type: message`` of the stage that failed (null: none)"""
+    error_stage: str | None = None
+    timings_s: dict[str, float] | None = None
+    """per stage (:data:`sim.evaluate.config.STAGES`), as built when cached"""
+    cached_stages: list[str] | None = None
+    joints: list[JointRecord] | None = None
+    segmentation_accuracy: float | None = None
+    manipulation: ManipulationRecord | None = None
+    scene_file: str | None = None
+    scene_hash: str | None = None
+    perturb_a: dict | None = None
+    """robustness runs: what the perturbation did to configuration A's set"""
+    capture_a: CaptureSummary | None = None
+    perturb_b: dict | None = None
+    capture_b: CaptureSummary | None = None
+    reconstruct_timings_s: dict[str, float] | None = None
+    perturb_matches: dict | None = None
+    model_summary: ModelSummary | None = None
+    registration: RegistrationRecord | None = None
+    invented_joints: list[InventedJoint] | None = None
+    static_joints: list[str] | None = None
+    n_estimated_joints: int | None = None
+    n_true_moving_joints: int | None = None
+    pairs: list[list[str]] | None = None
+    """(estimated, true) joint names"""
+    tree_correct: bool | None = None
+    link_correspondence: dict[str, str] | None = None
+    """model link: true link"""
+    segmentation: SegmentationRecord | None = None
+    model: ModelScore | None = None
+    camera_pose_error: PoseErrors | None = None
+    scale_error_pct: float | None = None
+    traceback: str | None = None
+    wall_s: float | None = None
+    passed: bool | None = None
+    failed_gates: list[GateCheck] | None = None
+    pictures_error: str | None = None
+    attempts: int | None = None
+    """a sweep's run that needed more than one"""
+
+
+# ---------------------------------------------------------------------------- a run, a sweep
+
+
+@dataclass(frozen=True, kw_only=True)
+class SweepMeta(_Record):
+    """How a sweep's runs ran."""
+
+    backend: str | None = None
+    jobs: int | None = None
+    address: str | None = None
+    retries: int | None = None
+    runs: int | None = None
+    wall_s: float | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class Meta(_Record):
+    """The run's metadata (:func:`sim.evaluate.runner.run_meta`)."""
+
+    versions: dict[str, str] | None = None
+    seed: int | None = None
+    """the seed (a sweep: ``seeds``)"""
+    views_per_ring: int | None = None
+    poses: str | None = None
+    manipulate: bool | None = None
+    perturbation: dict | None = None
+    """the perturbation's changed fields (none: ``{}``)"""
+    capture_settings: dict | None = None
+    """the capture settings off their defaults (``--set capture.FIELD=VALUE``, ``views.``;
+    absent when none is set)"""
+    command: str | None = None
+    date: str | None = None
+    scene_hashes: dict[str, str | None] | None = None
+    gates: dict[str, float] | None = None
+    """the gate table (:data:`sim.evaluate.gates.GATES`)"""
+    platform: str | None = None
+    sweep: SweepMeta | None = None
+    seeds: list[int] | None = None
+    perturbations: dict[str, dict] | None = None
+    """robustness sweeps: per perturbation its title, unit and neutral strength"""
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunSpecRecord(_Record):
+    """What decides a run's figures (:meth:`sim.evaluate.sweep.RunSpec.describe`)."""
+
+    scene: str
+    config: dict | None = None
+    """the EvalConfig fields that change figures, the perturbation's changed fields"""
+    perturbation: str | None = None
+    strength: float | None = None
+    label: str | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunRecord(_Record):
+    """One run of a sweep (also its ``run.json``)."""
+
+    id: str
+    group: str | None = None
+    spec: RunSpecRecord | None = None
+    code: str | None = None
+    """hash of the code that ran it (absent: not run)"""
+    status: str | None = None
+    """``passed``, ``failed``, ``died`` or ``not run``"""
+    attempts: int | None = None
+    worker: dict | None = None
+    """host, pid, wall_s"""
+    dir: str | None = None
+    """its report folder, relative to the sweep's"""
+    result: SceneRecord | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class FigureSummary(_Record):
+    """One gated figure over the seeds of a group."""
+
+    unit: str | None = None
+    gate: float | None = None
+    values: dict[str, float | None] | None = None
+    """per seed"""
+    n: int | None = None
+    missing: int | None = None
+    median: float | None = None
+    worst: float | None = None
+    spread: float | None = None
+    worst_passes: bool | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class GroupSummary(_Record):
+    """Runs of one scene and setting, seeds apart (:func:`sim.evaluate.sweep_report.
+    sweep_summary`)."""
+
+    group: str
+    scene: str | None = None
+    perturbation: str | None = None
+    strength: float | None = None
+    label: str | None = None
+    seeds: list[int] | None = None
+    runs: int | None = None
+    passed: int | None = None
+    failed: list[str] | None = None
+    figures: dict[str, FigureSummary] | None = None
+
+
+# ---------------------------------------------------------------------------- the file
+
+
+@dataclass(frozen=True, kw_only=True)
+class Results(_Record):
+    """A whole results.json: ``scenes`` and ``meta``, or a sweep's ``meta``, ``runs`` and
+    ``summary``."""
+
+    schema_version: int = SCHEMA_VERSION
+    scenes: dict[str, SceneRecord] | None = None
+    meta: Meta
+    runs: list[RunRecord] | None = None
+    summary: list[GroupSummary] | None = None
+
+    def __post_init__(self):
+        if (self.scenes is None) == (self.runs is None):
+            raise SchemaError("results.json holds either scenes (one run per scene) or runs "
+                              "and summary (a sweep), not "
+                              + ("both" if self.scenes is not None else "neither"))
+        if self.present is None:  # the layout's keys, not the other layout's nulls
+            keys = ("scenes",) if self.scenes is not None else ("runs", "summary")
+            object.__setattr__(self, "present", frozenset(("schema_version", "meta", *keys)))
+
+    @property
+    def layout(self) -> str:
+        """``"scenes"`` or ``"sweep"``."""
+        return "scenes" if self.scenes is not None else "sweep"
+
+    @classmethod
+    def from_json(cls, data, where: str = "results.json") -> Results:
+        """The record of a parsed results.json; SchemaError for a file of another
+        schema_version (or none: written before the schema had one) and for any key or value
+        the record does not hold."""
+        if not isinstance(data, dict):
+            raise SchemaError(f"{where}: expected an object, got {_kind(data)}")
+        version = data.get("schema_version")
+        if version != SCHEMA_VERSION:
+            written = ("has no schema_version: it was written before sim.evaluate versioned "
+                       "its results" if version is None else
+                       f"is of schema_version {version!r}")
+            raise SchemaError(f"{where} {written}; this code reads schema_version "
+                              f"{SCHEMA_VERSION} (sim/evaluate/record.py). Run the evaluation "
+                              "again with this code, or read the file with the code that wrote "
+                              "it.")
+        return super().from_json(data, where)
+
+
+def build(results: dict) -> Results:
+    """The record of the results a writer holds (plain JSON values: the runner's dicts after
+    :func:`sim.evaluate.report.jsonable_scene`), at this code's :data:`SCHEMA_VERSION`."""
+    return Results.from_json({"schema_version": SCHEMA_VERSION, **results})
+
+
+def read_results(path: str | Path) -> Results:
+    """The record of a results.json file (SchemaError: another version, or not this schema)."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except ValueError as err:
+        raise SchemaError(f"{path}: not JSON ({err})") from err
+    return Results.from_json(data, str(path))
