@@ -279,6 +279,34 @@ def _zbuffer(u: np.ndarray, v: np.ndarray, z: np.ndarray, w: int, h: int) -> np.
     return D.reshape(h, w)
 
 
+def _fuse_depths(P: np.ndarray, views: list[_View], Ks: list[np.ndarray], depth: dict,
+                 w: int, h: int, tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every point of ``P`` (n, 3) against every depth map (``depth``: view index -> (h, w)):
+    how many views' depths agree with it (within ``tol`` of its depth), how many show a surface
+    clearly behind it (looked through it), and which views agree, view-major ((views, n) bool:
+    one view's row is written at a time, where a point-major (n, views) array took a strided
+    write per view, most of this loop's time with ~10^6 points).
+
+    Only the points that project into a view are looked up there: a point outside it has no
+    depth there (neither agrees nor is looked through), as before when the whole array was
+    compared against an infinite depth."""
+    n = len(P)
+    agree = np.zeros(n, dtype=np.int32)
+    through = np.zeros(n, dtype=np.int32)
+    vis = np.zeros((len(views), n), dtype=bool)
+    for k, Dk in depth.items():
+        u, v, z, inside = _project(views[k], Ks[k], P, w, h)
+        idx = np.flatnonzero(inside)
+        d = Dk.ravel()[v[idx] * w + u[idx]]
+        z = z[idx]
+        seen = np.isfinite(d)
+        ok = seen & (np.abs(d - z) < tol * z)
+        vis[k, idx] = ok
+        agree[idx] += ok
+        through[idx] += seen & (d > (1.0 + tol) * z)
+    return agree, through, vis
+
+
 def _voxel_merge(P: np.ndarray, C: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
     """Points (n, 3) and colours (n, 3) averaged per cubic voxel of edge ``voxel``."""
     keys = np.floor(P / voxel).astype(np.int64)
@@ -364,24 +392,13 @@ def dense_points(sfm, config: DenseConfig = DenseConfig(), progress=None) -> Den
     voxel = config.voxel_pixels * cam_dist / Ks[0][0, 0]
     Pm, Cm = _voxel_merge(P, C, voxel)
     n = len(Pm)
-    agree = np.zeros(n, dtype=np.int32)
-    through = np.zeros(n, dtype=np.int32)
-    vis = np.zeros((n, len(views)), dtype=bool)
-    tol = config.depth_tolerance
-    for k, Dk in depth.items():
-        u, v, z, inside = _project(views[k], Ks[k], Pm, w, h)
-        d = np.full(n, np.inf)
-        d[inside] = Dk[v[inside], u[inside]]
-        seen = np.isfinite(d)
-        ok = seen & (np.abs(d - z) < tol * z)
-        vis[:, k] = ok
-        agree += ok
-        through += seen & (d > (1.0 + tol) * z)
+    agree, through, vis = _fuse_depths(Pm, views, Ks, depth, w, h, config.depth_tolerance)
     good = (agree >= config.min_consistent + 1) & (through <= config.max_free_space_ratio * agree)
     if good.sum() < 10:
         raise ReconstructionError(f"dense: only {int(good.sum())} points agree across views; the "
                                   "SfM poses may be wrong or the surfaces lack texture")
-    Pm, Cm, vis = Pm[good], Cm[good], vis[good]
+    Pm, Cm = Pm[good], Cm[good]
+    vis = np.ascontiguousarray(vis[:, good].T)  # (points, views), as the rest reads it
     normals = estimate_normals(Pm, vis, centres, config.normal_neighbours)
     log.info("dense: %d pairs, %d points, %d merged, %d consistent (voxel %.4g; %d dropped as "
              "seen through)", len(depth), len(P), n, len(Pm), voxel,

@@ -7,12 +7,21 @@ For each scene (default: every bundled scene) runs ``sim.evaluate.evaluate_scene
 job's default configuration (36 views per ring, the arm's FK poses, seed 0, manipulation on),
 exactly what ``python -m sim.evaluate`` runs, and prints:
 
-- the scene's wall time and each stage's seconds (``timings_s``; the two captures run side by
-  side in two processes, and so do the two configurations' SfM and dense stages);
+- the scene's wall time and each stage's seconds (``timings_s``; the two configurations' chains
+  -- capture, SfM, dense -- run side by side in two processes, so ``sfm`` and ``dense``, the sums
+  of A's and B's, are more than they add to the wall time, and the manipulation runs beside the
+  scoring); ``chains``: the longer of the two chains (capture + per-configuration stage, as
+  built), ``model``: the model stage (matching A x B to the joints and dense labels), ``tail``:
+  the fresh view to the end (registration, scoring, manipulation);
+- where the CPU went in each configuration (``cpu``): the capture's view plan (IK), arm motion,
+  rendering and PNG writing, SfM's SIFT extraction, matching and triangulation, dense stereo,
+  as the stages measured them (CPU seconds are much less inflated by other load than wall
+  seconds);
 - the floor, measured in the same run: rendering the images plus extracting their SIFT features
   with the settings the reconstruction ships, per configuration (the capture's own ``render_s``
   and the configuration stage's ``sfm_extract``), the larger of A and B, since the two run side by
   side: no run of this method goes under it, every image must be made and described once;
+  ``floor_cpu_s`` the same in CPU seconds;
 - the ratio of the scene's wall time to that floor (issue 20's goal: <= 2);
 - the process's CPU seconds (user + system, children included), which other load on the machine
   inflates much less than the wall time.
@@ -32,6 +41,7 @@ import argparse
 import json
 import resource
 import shutil
+import statistics
 import sys
 import tempfile
 import time
@@ -42,6 +52,11 @@ from artrecon.files import read_json
 from sim import evaluate
 from sim.scene import list_scenes
 
+NAN = float("nan")
+#: Stages after the model (timings_s), one after the other but for the last two: the
+#: manipulation beside the scoring.
+TAIL = ("fresh_view", "registration", "scoring", "manipulation")
+
 
 def _cpu_s() -> float:
     """User + system CPU seconds of this process and of its finished children."""
@@ -51,17 +66,44 @@ def _cpu_s() -> float:
 
 
 def floor_of(result: dict) -> dict:
-    """Render and SIFT-extraction seconds per configuration, as this run measured them."""
+    """Per configuration, as this run measured them: the capture's CPU seconds per step (from its
+    cache record: the capture writes no timings beside the images), the per-configuration
+    stage's (SfM steps, dense), and the floor (render + SIFT extraction, wall and CPU)."""
     out = {}
     model_dir = Path(result["_model_dir"])
     for c in ("a", "b"):
-        capture = read_json(Path(result["_sets"][c]) / "capture.json")
-        render = float(capture.get("timings", {}).get("render_s", float("nan")))
+        capture = read_json(Path(result["_sets"][c]).parent / "stage.json")
+        ct = capture.get("timings", {})
         conf = read_json(model_dir / c / "configuration.json")
-        extract = float(conf.get("timings", {}).get("sfm_extract", float("nan")))
-        out[c] = {"render_s": render, "extract_s": extract}
+        t = conf.get("timings", {})
+        out[c] = {"render_s": ct.get("render_s", NAN), "extract_s": t.get("sfm_extract", NAN),
+                  "chain_s": capture.get("build_s", NAN) + t.get("sfm", NAN) + t.get("dense", NAN),
+                  "cpu": {"plan": ct.get("plan_cpu_s", NAN), "move": ct.get("move_cpu_s", NAN),
+                          "render": ct.get("render_cpu_s", NAN), "png": ct.get("png_cpu_s", NAN),
+                          "extract": t.get("sfm_extract_cpu", NAN),
+                          "match": t.get("sfm_match_cpu", NAN), "map": t.get("sfm_map_cpu", NAN),
+                          "dense": t.get("dense_cpu", NAN)}}
     out["floor_s"] = max(v["render_s"] + v["extract_s"] for v in (out["a"], out["b"]))
+    out["floor_cpu_s"] = max(v["cpu"]["render"] + v["cpu"]["extract"]
+                             for v in (out["a"], out["b"]))
     return out
+
+
+def summary(result: dict, wall: float, parallel: bool = True) -> dict:
+    """A scene's floor, ratio, its time by part (chains, model, tail) and the CPU seconds per step
+    of each configuration (:func:`floor_of`); ``parallel``: the run had its second process
+    (``EvalConfig.parallel_capture``)."""
+    f = floor_of(result)
+    st, rt = result["timings_s"], result.get("reconstruct_timings_s", {})
+    return {"floor_s": round(f["floor_s"], 1), "floor_cpu_s": round(f["floor_cpu_s"], 1),
+            "ratio": round(wall / f["floor_s"], 2),
+            "chains_s": round(max(f["a"]["chain_s"], f["b"]["chain_s"]), 1),
+            "model_s": round(rt.get("total", NAN), 1),
+            # the manipulation's span holds the scoring when the two run side by side
+            "tail_s": round(sum(st.get(k) or 0.0 for k in TAIL[:2])
+                            + (max if parallel else sum)(st.get(k) or 0.0 for k in TAIL[2:]), 1),
+            "cpu_by_configuration": {c: {k: round(v, 1) for k, v in f[c]["cpu"].items()}
+                                     for c in ("a", "b")}}
 
 
 def photo_route(result: dict, work: Path) -> dict:
@@ -77,6 +119,28 @@ def photo_route(result: dict, work: Path) -> dict:
     return {"wall_s": time.perf_counter() - t, "cpu_s": _cpu_s() - cpu,
             "links": len(model.links), "joints": len(model.joints),
             "focal_px": (model.metadata.get("intrinsics") or {}).get("fx")}
+
+
+def print_tables(rows: list[dict]) -> None:
+    """The wall-time table (the scene, its floor, its parts and stages) and the CPU table (each
+    configuration's steps)."""
+    stages = [k for k in evaluate.STAGES if any(k in r["stages_s"] for r in rows)]
+    parts = ("floor_s", "floor_cpu_s", "ratio", "chains_s", "model_s", "tail_s")
+    print("\nscene          wall s  cpu s" + "".join(f"{k[:-2] if k.endswith('_s') else k:>10s}"
+                                                 for k in parts)
+          + "".join(f"{k[:11]:>12s}" for k in stages) + "  verdict")
+    for r in rows:
+        print(f"{r['scene']:14s}{r['wall_s']:7.1f}{r['cpu_s']:7.1f}"
+              + "".join(f"{r.get(k, NAN):10.2f}" if k == "ratio" else f"{r.get(k, NAN):10.1f}"
+                        for k in parts)
+              + "".join(f"{r['stages_s'].get(k, NAN):12.1f}" for k in stages)
+              + ("  PASS" if r["passed"] else f"  FAIL{' (error)' if r['error'] else ''}"))
+    steps = ("plan", "move", "render", "png", "extract", "match", "map", "dense")
+    print("\nCPU seconds per configuration" + " " * 6 + "".join(f"{k:>9s}" for k in steps))
+    for r in rows:
+        for c, cpu in (r.get("cpu_by_configuration") or {}).items():
+            print(f"{r['scene']:14s} {c.upper()}" + " " * 19
+                  + "".join(f"{cpu.get(k, NAN):9.1f}" for k in steps))
 
 
 def main() -> int:
@@ -108,26 +172,17 @@ def main() -> int:
                    "stages_s": {k: round(v, 1) for k, v in r["timings_s"].items()
                                 if v is not None}}
             if not r.get("error"):
-                f = floor_of(r)
-                row.update(floor_s=round(f["floor_s"], 1), floor=f,
-                           ratio=round(wall / f["floor_s"], 2))
+                row.update(summary(r, wall, ev.parallel_capture))
                 if args.photo_route == name:
                     row["photo_route"] = photo_route(r, Path(tempfile.mkdtemp(dir=out)))
             rows.append(row)
             print("BENCH " + json.dumps(row), flush=True)
     finally:
         tmp.cleanup()
-    stages = [k for k in evaluate.STAGES if any(k in r["stages_s"] for r in rows)]
-    print("\nscene          wall s  cpu s  floor s  wall/floor  " + "  ".join(
-        f"{k[:10]:>10s}" for k in stages) + "  verdict")
-    for r in rows:
-        print(f"{r['scene']:14s}{r['wall_s']:7.1f}{r['cpu_s']:7.1f}"
-              f"{r.get('floor_s', float('nan')):9.1f}{r.get('ratio', float('nan')):12.2f}  "
-              + "  ".join(f"{r['stages_s'].get(k, float('nan')):10.1f}" for k in stages)
-              + ("  PASS" if r["passed"] else f"  FAIL{' (error)' if r['error'] else ''}"))
-    walls = sorted(r["wall_s"] for r in rows)
+    print_tables(rows)
+    walls = [r["wall_s"] for r in rows]
     if walls:
-        print(f"\nmedian wall {walls[len(walls) // 2]:.1f} s, max {walls[-1]:.1f} s over "
+        print(f"\nmedian wall {statistics.median(walls):.1f} s, max {max(walls):.1f} s over "
               f"{len(walls)} scene(s)")
     for r in rows:
         if "photo_route" in r:

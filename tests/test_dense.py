@@ -46,6 +46,47 @@ def test_normals_of_a_plane_face_the_cameras():
     assert np.all(n_below[:, 2] < -0.99)
 
 
+def test_depth_fusion_counts_as_point_by_point():
+    """The fusion of merged points against the depth maps (view-major, only the points inside
+    a view looked up) gives what comparing every point with every view's depth gives."""
+    rng = np.random.default_rng(3)
+    w, h = 40, 30
+    K = np.array([[30.0, 0.0, 19.5], [0.0, 30.0, 14.5], [0.0, 0.0, 1.0]])
+    c, axes = ring(n=6, radius=2.0, height=0.5)
+    views = []
+    for centre, z in zip(c, axes, strict=True):
+        x = np.cross([0.0, 0.0, 1.0], z)
+        x /= np.linalg.norm(x)
+        R = np.stack([x, np.cross(z, x), z])
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, -R @ centre
+        views.append(dense._View("v", K, T, centre, z, set()))
+    P = rng.uniform(-0.6, 0.6, (3000, 3))
+    depth = {}
+    for k in (0, 2, 3, 5):  # views 1 and 4 have no depth map (no stereo partner)
+        u, v, z, inside = dense._project(views[k], K, P[:200], w, h)
+        D = dense._zbuffer(u[inside], v[inside], z[inside] * rng.uniform(0.98, 1.02), w, h)
+        depth[k] = D
+    tol = 0.01
+    agree, through, vis = dense._fuse_depths(P, views, [K] * len(views), depth, w, h, tol)
+    ref_vis = np.zeros((len(P), len(views)), bool)
+    ref_agree = np.zeros(len(P), np.int32)
+    ref_through = np.zeros(len(P), np.int32)
+    for k, D in depth.items():
+        u, v, z, inside = dense._project(views[k], K, P, w, h)
+        d = np.full(len(P), np.inf)
+        d[inside] = D[v[inside], u[inside]]
+        seen = np.isfinite(d)
+        ok = seen & (np.abs(d - z) < tol * z)
+        ref_vis[:, k] = ok
+        ref_agree += ok
+        ref_through += seen & (d > (1.0 + tol) * z)
+    assert ref_agree.any() and ref_through.any()
+    np.testing.assert_array_equal(agree, ref_agree)
+    np.testing.assert_array_equal(through, ref_through)
+    np.testing.assert_array_equal(vis.T, ref_vis)
+
+
 def test_object_region_drops_table_and_walls():
     """A box on a table inside walls, seen by a ring of cameras: only the box is kept."""
     rng = np.random.default_rng(2)

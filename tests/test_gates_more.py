@@ -269,6 +269,15 @@ def test_every_joint_of_the_model_is_moved_and_scored_against_its_true_joint(mon
     man = evaluate.runner._manipulations(scene, model, {"joints": [], "cached_stages": []},
                                          None, [], None, None, "")
     assert not man["passes"] and man["runs"][0]["true_joint"] is None
+    # a joint already moved elsewhere (the scene's second process) is scored, not moved again
+    calls.clear()
+    done = evaluate.runner.manipulation_runs([0], scene, model, None, [], None, None, "")
+    assert calls == [0] and done[0][1] is False
+    result = {"joints": out["joints"], "cached_stages": []}
+    man = evaluate.runner._manipulations(scene, model, result, None, [], None, None, "",
+                                         {0: (done[0][0], True)})
+    assert calls == [0] and man["runs"][0]["true_joint"] == "drawer_slide"
+    assert result["cached_stages"] == ["manipulation[e_slide]"]
 
 
 def test_the_force_reference_replays_the_runs_grasp_and_arm(monkeypatch, tmp_path):

@@ -50,8 +50,10 @@ class EvalConfig:
     progress: bool = True
     """tqdm progress bars"""
     parallel_capture: bool = True
-    """capture configuration B in a second process while this one captures A (the capture is
-    mostly single-threaded: planning, physics, PNG writing); the images are the same"""
+    """a second process for the scene (:func:`sim.evaluate.stages.second_process`): it captures
+    and reconstructs configuration B while this one does A (each chain keeps one core busy:
+    planning, physics, rendering, features, dense stereo), then moves every other joint of the
+    model while this one scores; the images, models and figures are the same either way"""
     perturb: perturb.Perturbation = field(default_factory=perturb.Perturbation)
     """perturbations of a robustness run (sim.perturb; default none)"""
     capture_settings: CaptureSettings = field(default_factory=CaptureSettings)

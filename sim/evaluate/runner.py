@@ -63,6 +63,7 @@ import time
 import traceback
 from pathlib import Path
 
+from artrecon import workers
 from artrecon.model import ArticulatedModel
 from sim import cache, perturb
 from sim.evaluate import gates
@@ -84,6 +85,7 @@ from sim.evaluate.stages import (
     reconstruct_stage,
     register_configuration,
     register_stage,
+    second_process,
     versions,
 )
 from sim.scene import load_scene
@@ -116,87 +118,98 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
         result["scene_file"] = str(scene.path)
         scene_hash = cache.scene_hash(scene.path)
         result["scene_hash"] = scene_hash
-        sets, keys, confs, capture_sets = {}, [], {}, {}
-        stage = "capture_a"
-        chains = configuration_chains(scene, ev, cache_root, scene_hash,
-                                      dict(scene.reconstruct_settings))
-        for c in ("a", "b"):
-            stage = f"capture_{c}"
-            if isinstance(chains[c], BaseException):
-                stage = getattr(chains[c], "stage", stage)
-                raise chains[c]
-            chain = chains[c]
-            meta = chain["capture"]
-            sets[c], confs[c] = chain["set"], chain["configuration"]
-            capture_sets[c] = chain["capture_set"]
-            keys.append(chain["key"])
-            if chain["perturb"]:
-                result[f"perturb_{c}"] = chain["perturb"]
-            timings[stage] = meta["build_s"]
-            result["cached_stages"] += chain["hits"]
-            result[f"capture_{c}"] = {k: meta[k] for k in
-                                      ("n_planned", "n_captured", "max_fk_position_error_mm",
-                                       "max_fk_rotation_error_deg") if k in meta}
-        result["_sets"] = {c: str(p) for c, p in sets.items()}
-        stage = "reconstruct"
-        model_dir, meta, hit = reconstruct_stage(sets["a"], sets["b"], tuple(keys), ev,
-                                                 cache_root, dict(scene.reconstruct_settings),
-                                                 (confs["a"], confs["b"]))
-        result["_model_dir"] = str(model_dir)
-        rt = meta.get("timings", {})
-        timings["sfm"] = rt.get("sfm_a", 0.0) + rt.get("sfm_b", 0.0)
-        timings["dense"] = rt.get("dense_a", 0.0) + rt.get("dense_b", 0.0)
-        timings["matching"] = rt.get("match", 0.0)
-        timings["segmentation_joints"] = rt.get("segment", 0.0) + rt.get("joints", 0.0)
-        timings["assign_points"] = rt.get("assign", 0.0)
-        result["reconstruct_timings_s"] = rt
-        result["cached_stages"] += ["sfm", "dense", "matching", "segmentation_joints",
-                                    "assign_points"] if hit else []
-        stage = "match_outliers"
-        model_dir, pmeta = perturb.outlier_stage(model_dir, meta["key"], ev.perturb, ev.seed,
-                                                 cache_root, dict(scene.reconstruct_settings))
-        if pmeta:
-            result["perturb_matches"] = pmeta
-        model = ArticulatedModel.load(model_dir / "model.json")
-        result["model_summary"] = {"links": len(model.links), "joints": len(model.joints),
-                                   **{k: model.metadata.get(k) for k in
-                                      ("registered_images", "num_images", "sparse_points",
-                                       "dense_points", "matches", "match_outliers",
-                                       "pose_agreement")}}
+        with second_process(ev) as pool:
+            sets, keys, confs, capture_sets = {}, [], {}, {}
+            stage = "capture_a"
+            chains = configuration_chains(scene, ev, cache_root, scene_hash,
+                                          dict(scene.reconstruct_settings), pool)
+            for c in ("a", "b"):
+                stage = f"capture_{c}"
+                if isinstance(chains[c], BaseException):
+                    stage = getattr(chains[c], "stage", stage)
+                    raise chains[c]
+                chain = chains[c]
+                meta = chain["capture"]
+                sets[c], confs[c] = chain["set"], chain["configuration"]
+                capture_sets[c] = chain["capture_set"]
+                keys.append(chain["key"])
+                if chain["perturb"]:
+                    result[f"perturb_{c}"] = chain["perturb"]
+                timings[stage] = meta["build_s"]
+                result["cached_stages"] += chain["hits"]
+                result[f"capture_{c}"] = {k: meta[k] for k in
+                                          ("n_planned", "n_captured", "max_fk_position_error_mm",
+                                           "max_fk_rotation_error_deg") if k in meta}
+            result["_sets"] = {c: str(p) for c, p in sets.items()}
+            stage = "reconstruct"
+            model_dir, meta, hit = reconstruct_stage(sets["a"], sets["b"], tuple(keys), ev,
+                                                     cache_root, dict(scene.reconstruct_settings),
+                                                     (confs["a"], confs["b"]))
+            result["_model_dir"] = str(model_dir)
+            rt = meta.get("timings", {})
+            timings["sfm"] = rt.get("sfm_a", 0.0) + rt.get("sfm_b", 0.0)
+            timings["dense"] = rt.get("dense_a", 0.0) + rt.get("dense_b", 0.0)
+            timings["matching"] = rt.get("match", 0.0)
+            timings["segmentation_joints"] = rt.get("segment", 0.0) + rt.get("joints", 0.0)
+            timings["assign_points"] = rt.get("assign", 0.0)
+            result["reconstruct_timings_s"] = rt
+            result["cached_stages"] += ["sfm", "dense", "matching", "segmentation_joints",
+                                        "assign_points"] if hit else []
+            stage = "match_outliers"
+            model_dir, pmeta = perturb.outlier_stage(model_dir, meta["key"], ev.perturb, ev.seed,
+                                                     cache_root, dict(scene.reconstruct_settings))
+            if pmeta:
+                result["perturb_matches"] = pmeta
+            model = ArticulatedModel.load(model_dir / "model.json")
+            result["model_summary"] = {"links": len(model.links), "joints": len(model.joints),
+                                       **{k: model.metadata.get(k) for k in
+                                          ("registered_images", "num_images", "sparse_points",
+                                           "dense_points", "matches", "match_outliers",
+                                           "pose_agreement")}}
 
-        stage = "fresh_view"
-        t = time.perf_counter()
-        fresh, fmeta, fhit = fresh_view_stage(scene, capture_sets["a"], keys[0], ev, cache_root)
-        result["cached_stages"] += ["fresh_view"] if fhit else []
-        q_arm = fresh_arm_pose(fmeta)  # where the arm is now: the manipulation starts there
-        timings["fresh_view"] = time.perf_counter() - t
-
-        stage = "registration"
-        t = time.perf_counter()
-        reg = register_stage(model_dir, sets["a"], fresh, ev.seed)
-        timings["registration"] = time.perf_counter() - t
-        registered = reg["registered"]
-        result["registration"] = {**reg["summary"], **score_registration(
-            reg["routes"], true_registration(model_dir, sets["a"]), model)}
-
-        stage = "scoring"
-        t = time.perf_counter()
-        # B's own registration places B's points where B's reconstruction saw them (scoring)
-        reg_b = register_configuration(model_dir, sets["b"], "b", ev.seed)[0].T_robot_model
-        scores = score_scene(scene, registered, reg["sfm_poses"], reg["T"], sets["a"], ev.seed,
-                             set_b=sets["b"], model=model, T_reg_b=reg_b)
-        timings["scoring"] = time.perf_counter() - t
-        result.update({k: v for k, v in scores.items() if not k.startswith("_")})
-        result["_arrays"] = {k: v for k, v in scores.items() if k.startswith("_")}
-        result["_registered"] = registered
-        result["_set_a"] = str(sets["a"])
-
-        if ev.manipulate:
-            stage = "manipulation"
+            stage = "fresh_view"
             t = time.perf_counter()
-            result["manipulation"] = _manipulations(scene, registered, result, q_arm, keys,
-                                                    ev, cache_root, scene_hash)
-            timings["manipulation"] = time.perf_counter() - t
+            fresh, fmeta, fhit = fresh_view_stage(scene, capture_sets["a"], keys[0], ev,
+                                                  cache_root)
+            result["cached_stages"] += ["fresh_view"] if fhit else []
+            q_arm = fresh_arm_pose(fmeta)  # where the arm is now: the manipulation starts there
+            timings["fresh_view"] = time.perf_counter() - t
+
+            stage = "registration"
+            t = time.perf_counter()
+            reg = register_stage(model_dir, sets["a"], fresh, ev.seed)
+            timings["registration"] = time.perf_counter() - t
+            registered = reg["registered"]
+            result["registration"] = {**reg["summary"], **score_registration(
+                reg["routes"], true_registration(model_dir, sets["a"]), model)}
+
+            # the manipulation plans from the registered model alone: the second process moves
+            # every other joint (from the first) while this one scores, then moves the rest
+            elsewhere, t_manip = None, time.perf_counter()
+            if ev.manipulate and pool is not None and registered.joints:
+                elsewhere = workers.submit(
+                    pool, manipulation_runs, range(0, len(registered.joints), 2), scene,
+                    registered, q_arm, keys, ev, cache_root, scene_hash)
+
+            stage = "scoring"
+            t = time.perf_counter()
+            # B's own registration places B's points where B's reconstruction saw them (scoring)
+            reg_b = register_configuration(model_dir, sets["b"], "b", ev.seed)[0].T_robot_model
+            scores = score_scene(scene, registered, reg["sfm_poses"], reg["T"], sets["a"],
+                                 ev.seed, set_b=sets["b"], model=model, T_reg_b=reg_b)
+            timings["scoring"] = time.perf_counter() - t
+            result.update({k: v for k, v in scores.items() if not k.startswith("_")})
+            result["_arrays"] = {k: v for k, v in scores.items() if k.startswith("_")}
+            result["_registered"] = registered
+            result["_set_a"] = str(sets["a"])
+
+            if ev.manipulate:
+                stage = "manipulation"
+                done = {} if elsewhere is None else elsewhere.result()
+                result["manipulation"] = _manipulations(scene, registered, result, q_arm, keys,
+                                                        ev, cache_root, scene_hash, done)
+                # from the first joint's start: beside the scoring when a second process helps
+                timings["manipulation"] = time.perf_counter() - t_manip
     except Exception as err:
         result["error"] = f"{stage}: {type(err).__name__}: {err}"
         result["error_stage"] = stage
@@ -208,19 +221,35 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
     return result
 
 
+def manipulation_runs(joints, scene, registered, q_start, keys, ev, cache_root,
+                      scene_hash) -> dict[int, tuple[dict, bool]]:
+    """:func:`manipulation_stage` of each of the model's ``joints`` (indices), in turn: ``{joint:
+    (its run record, taken from the cache)}``. Each starts from ``q_start`` in a world of its own,
+    so they may run in any process and order (the second process takes some of them)."""
+    out = {}
+    for k in joints:
+        run, _, hit = manipulation_stage(scene, registered, k, q_start, keys, ev, cache_root,
+                                         scene_hash)
+        out[k] = (run, hit)
+    return out
+
+
 def _manipulations(scene, registered, result, q_start, keys, ev, cache_root,
-                   scene_hash) -> dict:
+                   scene_hash, done: dict | None = None) -> dict:
     """Every joint of the model moved in turn, each as the model says (:func:`manipulation_stage`:
     planned from the registered model alone, from the arm's configuration ``q_start``: where the
-    fresh view left it); then scored: the true joint each estimates (the
+    fresh view left it; ``done``: the runs of joints already moved, :func:`manipulation_runs`);
+    then scored: the true joint each estimates (the
     scoring's pairing), how far it moved against the requested motion, the force against the
     force the true joint needs (:func:`manipulation_reference_stage`)."""
     by_est = {r["estimated_joint"]: r for r in result.get("joints") or []
               if r.get("estimated_joint") is not None}
+    done = dict(done or {})
+    done.update(manipulation_runs([k for k in range(len(registered.joints)) if k not in done],
+                                  scene, registered, q_start, keys, ev, cache_root, scene_hash))
     runs = []
     for k, j in enumerate(registered.joints):
-        run, _, hit = manipulation_stage(scene, registered, k, q_start, keys, ev, cache_root,
-                                         scene_hash)
+        run, hit = done[k]
         if hit:
             result["cached_stages"].append(f"manipulation[{j.name}]")
         row = by_est.get(j.name)

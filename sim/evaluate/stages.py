@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import importlib
 import inspect
 import logging
 import os
 import platform
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -211,40 +214,58 @@ def configuration_chain(scene: Scene, configuration: str, ev: EvalConfig, cache_
                         f"configuration_{configuration}": cmeta["build_s"]}}
 
 
+@contextlib.contextmanager
+def second_process(ev: EvalConfig) -> Iterator[ProcessPoolExecutor | None]:
+    """One scene's second process (spawned, one worker that dies with this one), or None
+    without ``ev.parallel_capture``: configuration B's chain runs there beside A's
+    (:func:`configuration_chains`), then the manipulation beside the scoring
+    (:func:`sim.evaluate.runner.evaluate_scene`). One process for both: a worker costs about
+    2 CPU seconds to start (imports, its OpenGL context). Ctrl-C stops it at once; otherwise
+    it is shut down when the block ends, after its task."""
+    if not ev.parallel_capture:
+        yield None
+        return
+    # one core each: the CPU rasteriser's threads (read when a process first renders) and,
+    # in artrecon's per-configuration stage, BLAS and OpenCV (artrecon.configuration)
+    os.environ.setdefault("LP_NUM_THREADS", "1")
+    pool = workers.pool(1)
+    try:
+        yield pool
+    except KeyboardInterrupt:
+        workers.stop(pool)
+        raise
+    finally:
+        pool.shutdown(wait=True)
+
+
 def configuration_chains(scene: Scene, ev: EvalConfig, cache_root: Path, scene_hash: str,
-                         settings: dict | None = None) -> dict[str, dict | BaseException]:
+                         settings: dict | None = None,
+                         pool: ProcessPoolExecutor | None = None
+                         ) -> dict[str, dict | BaseException]:
     """:func:`configuration_chain` of A and B, each its result or its exception.
 
-    With ``ev.parallel_capture``, B runs in a second process (spawned: its own MuJoCo and OpenGL
-    context, no progress bar) while this process runs A: the two configurations are independent
-    until their models are matched, and most of each chain (planning, physics, rendering,
-    feature extraction, dense stereo) keeps one core busy.
+    With ``pool`` (:func:`second_process`), B runs in that second process (spawned: its own
+    MuJoCo and OpenGL context, no progress bar) while this process runs A: the two
+    configurations are independent until their models are matched, and most of each chain
+    (planning, physics, rendering, feature extraction, dense stereo) keeps one core busy.
+    Without it (and with ``ev.parallel_capture``) a second process is started for B and
+    stopped after it.
     """
+    if pool is None and ev.parallel_capture:
+        with second_process(ev) as own:
+            return configuration_chains(scene, ev, cache_root, scene_hash, settings, own)
     out: dict[str, dict | BaseException] = {}
-    pool = future = None
-    if ev.parallel_capture:
-        # one core each: the CPU rasteriser's threads (read when a process first renders) and,
-        # in artrecon's per-configuration stage, BLAS and OpenCV (artrecon.configuration)
-        os.environ.setdefault("LP_NUM_THREADS", "1")
-        pool = workers.pool(1)
+    future = None
+    if pool is not None:
         # the worker ignores Ctrl-C; this process stops it (one line, no worker traceback)
         future = workers.submit(pool, configuration_chain, scene, "b",
                                 replace(ev, progress=False), cache_root, scene_hash, settings)
-    try:
-        for c in ("a", "b"):
-            try:
-                out[c] = (future.result() if c == "b" and future is not None
-                          else configuration_chain(scene, c, ev, cache_root, scene_hash,
-                                                   settings))
-            except Exception as err:
-                out[c] = err
-    except KeyboardInterrupt:
-        if pool is not None:
-            workers.stop(pool)
-        raise
-    finally:
-        if pool is not None:
-            pool.shutdown(wait=True)
+    for c in ("a", "b"):
+        try:
+            out[c] = (future.result() if c == "b" and future is not None
+                      else configuration_chain(scene, c, ev, cache_root, scene_hash, settings))
+        except Exception as err:
+            out[c] = err
     return out
 
 
