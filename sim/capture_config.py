@@ -30,6 +30,9 @@ from artrecon.settings import Range, apply_settings
 from sim.views import ViewPlanConfig
 
 _OPEN = dict(low_open=True)
+#: Elevations the fresh view may take (degrees above the object's centre): checked when a
+#: CaptureConfig is made and by ``--set`` (its row of RANGES).
+FRESH_ELEVATION_DEG = (-80.0, 85.0)
 
 
 @dataclass(frozen=True)
@@ -64,9 +67,10 @@ class CaptureConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"CaptureConfig.{name} must be a positive number, got {value}")
-        if not -80.0 <= self.fresh_elevation_deg <= 85.0:
-            raise ValueError(f"CaptureConfig.fresh_elevation_deg must lie in [-80, 85] degrees, "
-                             f"got {self.fresh_elevation_deg}")
+        low, high = FRESH_ELEVATION_DEG
+        if not low <= self.fresh_elevation_deg <= high:
+            raise ValueError(f"CaptureConfig.fresh_elevation_deg must lie in [{low:g}, "
+                             f"{high:g}] degrees, got {self.fresh_elevation_deg}")
         if not self.fresh_azimuth_offsets_deg:
             raise ValueError("CaptureConfig.fresh_azimuth_offsets_deg needs at least one offset")
 
@@ -80,7 +84,8 @@ RANGES: dict[str, Range] = {
     "capture.settle_max_time": Range(0, 60, "simulated seconds", **_OPEN),
     "capture.object_drift_tol": Range(0, 0.01, "rad or m; 1 cm moves the object itself",
                                       **_OPEN),
-    "capture.fresh_elevation_deg": Range(-80, 85, "degrees above the object's centre"),
+    "capture.fresh_elevation_deg": Range(*FRESH_ELEVATION_DEG, "degrees above the object's "
+                                         "centre"),
     # --- views (sim.views.ViewPlanConfig)
     "views.fill": Range(0.05, 1, "a share of the shorter image side, within fill_range"),
     "views.max_elevation_shift_deg": Range(0, 30, "degrees"),
