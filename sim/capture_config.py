@@ -27,12 +27,9 @@ import numpy as np
 
 from artrecon.errors import InputError
 from artrecon.settings import Range, apply_settings
-from sim.views import ViewPlanConfig
+from sim.views import ELEVATION_LIMITS_DEG, ViewPlanConfig
 
 _OPEN = dict(low_open=True)
-#: Elevations the fresh view may take (degrees above the object's centre): checked when a
-#: CaptureConfig is made and by ``--set`` (its row of RANGES).
-FRESH_ELEVATION_DEG = (-80.0, 85.0)
 
 
 @dataclass(frozen=True)
@@ -67,7 +64,7 @@ class CaptureConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"CaptureConfig.{name} must be a positive number, got {value}")
-        low, high = FRESH_ELEVATION_DEG
+        low, high = ELEVATION_LIMITS_DEG
         if not low <= self.fresh_elevation_deg <= high:
             raise ValueError(f"CaptureConfig.fresh_elevation_deg must lie in [{low:g}, "
                              f"{high:g}] degrees, got {self.fresh_elevation_deg}")
@@ -84,7 +81,7 @@ RANGES: dict[str, Range] = {
     "capture.settle_max_time": Range(0, 60, "simulated seconds", **_OPEN),
     "capture.object_drift_tol": Range(0, 0.01, "rad or m; 1 cm moves the object itself",
                                       **_OPEN),
-    "capture.fresh_elevation_deg": Range(*FRESH_ELEVATION_DEG, "degrees above the object's "
+    "capture.fresh_elevation_deg": Range(*ELEVATION_LIMITS_DEG, "degrees above the object's "
                                          "centre"),
     # --- views (sim.views.ViewPlanConfig)
     "views.fill": Range(0.05, 1, "a share of the shorter image side, within fill_range"),

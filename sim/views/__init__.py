@@ -20,6 +20,7 @@ from sim.views.plan_file import PLAN_FORMAT, plan_from_json, plan_to_json
 from sim.views.planner import candidates, plan_capture
 from sim.views.records import (
     DEFAULT_VIEWS_PER_RING,
+    ELEVATION_LIMITS_DEG,
     MAX_NEIGHBOUR_ANGLE_DEG,
     MIN_VIEWS,
     Ring,
@@ -43,7 +44,8 @@ from sim.views.rings import (
 from sim.views.solve import check_paths, rolled, solve_views
 
 __all__ = [
-    "DEFAULT_VIEWS_PER_RING", "MAX_NEIGHBOUR_ANGLE_DEG", "MIN_VIEWS", "PLAN_FORMAT", "Ring",
+    "DEFAULT_VIEWS_PER_RING", "ELEVATION_LIMITS_DEG", "MAX_NEIGHBOUR_ANGLE_DEG", "MIN_VIEWS",
+    "PLAN_FORMAT", "Ring",
     "View", "ViewPlan", "ViewPlanConfig", "arm_collisions", "arm_link_bodies", "candidates",
     "check_paths", "clearance_violations", "fill_at_distance", "object_bodies",
     "object_bounding_sphere", "order_for_rail", "plan_capture", "plan_from_json", "plan_to_json",

@@ -25,7 +25,7 @@ import mujoco
 import numpy as np
 
 from sim import robot
-from sim.views.records import Ring, View, ViewPlan, ViewPlanConfig
+from sim.views.records import ELEVATION_LIMITS_DEG, Ring, View, ViewPlan, ViewPlanConfig
 from sim.views.rings import (
     fill_at_distance,
     object_bounding_sphere,
@@ -100,8 +100,8 @@ def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinem
     centre, radius = object_bounding_sphere(model, data)
     lowest = min((*config.elevations_deg, *config.top_elevations_deg))
     highest = max((*config.elevations_deg, *config.top_elevations_deg))
-    lowest = max(-80.0, lowest - config.max_elevation_shift_deg)
-    highest = min(85.0, highest + config.max_elevation_shift_deg)
+    lowest = max(ELEVATION_LIMITS_DEG[0], lowest - config.max_elevation_shift_deg)
+    highest = min(ELEVATION_LIMITS_DEG[1], highest + config.max_elevation_shift_deg)
     n_full = len(config.elevations_deg)
     plan = ViewPlan(centre=centre, radius=radius)
     q_last = None

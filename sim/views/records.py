@@ -15,6 +15,11 @@ MAX_NEIGHBOUR_ANGLE_DEG = 10.0
 #: degrees apart and no two views of the object share enough of it to be matched.
 MIN_VIEWS = 4
 
+#: Elevations a view may take, degrees above the object's centre (low, high): the capture rings
+#: (:attr:`ViewPlanConfig.elevations_deg`, and where the planner may shift them) and the fresh
+#: view (sim.capture_config).
+ELEVATION_LIMITS_DEG = (-80.0, 85.0)
+
 
 def views_problem(n_views: int, flag: str = "--views") -> str | None:
     """The message for a views-per-ring value below :data:`MIN_VIEWS` (None when it is fine):
@@ -116,9 +121,11 @@ class ViewPlanConfig:
         if not 0.0 <= self.max_elevation_shift_deg <= 30.0:
             raise ValueError(f"max_elevation_shift_deg must lie in [0, 30], got "
                              f"{self.max_elevation_shift_deg}")
+        low, high = ELEVATION_LIMITS_DEG
         for e in (*self.elevations_deg, *self.top_elevations_deg):
-            if not -80.0 <= e <= 85.0:
-                raise ValueError(f"ring elevations must lie in [-80, 85] degrees, got {e}")
+            if not low <= e <= high:
+                raise ValueError(f"ring elevations must lie in [{low:g}, {high:g}] degrees, "
+                                 f"got {e}")
         if not self.elevations_deg and not self.top_elevations_deg:
             raise ValueError("give at least one ring elevation")
         for name in ("fill_step", "elevation_step_deg", "clearance_m", "path_check_step",
