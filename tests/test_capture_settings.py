@@ -136,11 +136,14 @@ def pliers():
 
 @pytest.fixture
 def capture_set(tmp_path):
-    """A capture folder as the fresh view reads it: the arm's joints at its last image."""
+    """A capture folder as the fresh view reads it: the arm's joints at its last image and the
+    object's sphere its survey found."""
     folder = tmp_path / "capture_a" / "set"
     folder.mkdir(parents=True)
     (folder / "cameras.json").write_text(json.dumps({"images": [
         {"file": "000.png", "q": [0.1] * 7}]}))
+    (folder / "capture.json").write_text(json.dumps({"object_sphere": {
+        "centre": [0.01, 0.02, 0.5], "radius": 0.12, "survey": None}}))
     return folder
 
 
@@ -163,6 +166,8 @@ def test_the_fresh_view_gets_the_evaluations_settings(pliers, capture_set, tmp_p
     assert seen["capture_config"].fresh_elevation_deg == 45.0
     assert seen["plan_config"] == ViewPlanConfig(views_per_ring=18, seed=3, clearance_m=0.02)
     assert seen["seed"] == 3 and seen["q_start"] == [0.1] * 7
+    # it looks where the capture's survey found the object (issue 21), not at the truth
+    assert seen["target"] == ([0.01, 0.02, 0.5], 0.12)
 
 
 def test_the_captures_get_the_evaluations_settings(pliers, tmp_path, monkeypatch):

@@ -214,6 +214,10 @@ class CaptureSummary(_Record):
     n_captured: int | None = None
     max_fk_position_error_mm: float | None = None
     max_fk_rotation_error_deg: float | None = None
+    survey_centre_error_mm: float | None = None
+    """the survey's sphere (what the capture looked at) against the true one: centre, mm"""
+    survey_radius_ratio: float | None = None
+    """and radius, surveyed over true"""
 
 
 @dataclass(frozen=True, kw_only=True)

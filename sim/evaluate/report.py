@@ -260,6 +260,13 @@ def markdown(results: dict) -> str:
                     f" max {_f(cam.get('position_max_mm'), 2)} mm; rotation median "
                     f"{_f(cam.get('rotation_median_deg'), 3)} deg, max "
                     f"{_f(cam.get('rotation_max_deg'), 3)} deg ({cam.get('n')} images)"]
+        surveys = [(c, r.get(f"capture_{c}") or {}) for c in ("a", "b")]
+        if any("survey_centre_error_mm" in s for _, s in surveys):
+            out += ["- survey (the object's sphere the rings looked at, from the arm's "
+                    "photographs): " + "; ".join(
+                        f"{c.upper()} centre {_f(s.get('survey_centre_error_mm'), 1)} mm off, "
+                        f"radius x{_f(s.get('survey_radius_ratio'), 3)}"
+                        for c, s in surveys if "survey_centre_error_mm" in s)]
         model = r.get("model") or {}
         if model:
             h = model.get("hidden") or {}

@@ -402,6 +402,20 @@ def score_scene(scene: Scene, registered, sfm_poses: dict, T_reg, set_a: Path,
 
 
 
+def score_survey(capture_set: Path) -> dict:
+    """How far the capture's survey (the object's sphere the robot found and planned its rings
+    around, capture.json) is from the object's true bounding sphere (ground_truth/poses.json):
+    the centre's distance (mm) and the radius's ratio; empty for a capture without them."""
+    found = read_json(Path(capture_set) / "capture.json").get("object_sphere")
+    truth = read_json(Path(capture_set) / "ground_truth" / "poses.json").get(
+        "object_bounding_sphere")
+    if not found or not truth:
+        return {}
+    return {"survey_centre_error_mm": 1e3 * float(np.linalg.norm(
+                np.subtract(found["centre"], truth["centre"]))),
+            "survey_radius_ratio": float(found["radius"]) / float(truth["radius"])}
+
+
 def score_registration(routes: dict, T_true, model) -> dict:
     """Each registration route's error against the true registration (rotation deg, translation
     mm at the model's points, scale %): ``{"truth_errors": {route: {...}}}``."""

@@ -115,7 +115,8 @@ def plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, 
     3.0 N m, where a roll with the fingers either side of the handle turned it at 3 N); then the
     shortest travel. The IK starts from ``q_start``; when no roll passes from there, it starts
     again from the arm's home configuration (:attr:`PlanningWorld.q_home`: another branch of
-    the arm's IK, whose travel from ``q_start`` is checked like any other). The plan, or None
+    the arm's IK, whose travel from ``q_start`` is checked like any other), and then from home
+    with the rail turned to the side the grasp faces (:func:`facing_start`). The plan, or None
     and why."""
     rolls = pw.config.rolls_deg if rolls_deg is None else tuple(rolls_deg)
     q_start = np.asarray(q_start, float)
@@ -126,7 +127,34 @@ def plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, 
             return plan, why
         home, why_home = _plan_candidate(pw, cand, est, amount, q_start, pw.q_home, seed,
                                          moving_links, rolls)
-    return (home, "") if home is not None else (None, f"{why} | from home: {why_home}")
+        if home is not None:
+            return home, ""
+        why = f"{why} | from home: {why_home}"
+        facing = facing_start(pw, cand, (q_start, pw.q_home))
+        if facing is None:
+            return None, why
+        plan, why_facing = _plan_candidate(pw, cand, est, amount, q_start, facing, seed,
+                                           moving_links, rolls)
+    return (plan, "") if plan is not None else (None, f"{why} | facing: {why_facing}")
+
+
+def facing_start(pw: PlanningWorld, cand: GraspCandidate, tried=()) -> np.ndarray | None:
+    """The arm's home posture on the rail turned to the side the grasp faces: the shoulder at the
+    azimuth of the candidate's outward normal (of the point itself, about the rail's axis, when
+    the normal is near vertical). From the start pose and from home, the IK keeps the rail where
+    it is and reaches a face turned away from the arm around or through the object (the door of
+    cabinet_door_only grasped at its outer edge, from a start on the other side of the table:
+    every candidate touched the model). None when the rail would turn by less than
+    :attr:`PlanningConfig.facing_min_turn` from every start in ``tried``."""
+    n = np.asarray(cand.normal, float)
+    horizontal = n[:2] if np.hypot(*n[:2]) >= pw.config.facing_min_horizontal else cand.point[:2]
+    q = np.array(pw.q_home, float)
+    q[0] = pw.kin.rail_angle_for_azimuth(float(np.arctan2(horizontal[1], horizontal[0])))
+    for t in tried:
+        turn = abs((q[0] - float(np.asarray(t)[0]) + np.pi) % (2 * np.pi) - np.pi)
+        if turn < pw.config.facing_min_turn:
+            return None
+    return q
 
 
 def motion_waypoints(est: JointEstimate, amount: float, cfg: PlanningConfig) -> np.ndarray:
