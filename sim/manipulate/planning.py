@@ -61,6 +61,9 @@ class Plan:
     gripper_contacts: int = 0
     """contacts of the gripper with the model at the grasp pose (:meth:`PlanningWorld.
     gripper_contacts`): the fingers resting on the object, not straddling it"""
+    travel: np.ndarray | None = None
+    """(k, n) arm waypoints from the start to the pre-grasp pose when the straight line between
+    them is blocked (:func:`retreat_travel`); None: the straight line"""
 
 
 
@@ -195,11 +198,13 @@ def motion_path(kin, cfg: PlanningConfig, est: JointEstimate, amount: float, T_g
 
 
 def replay_plan(kin, cfg: PlanningConfig, cand: GraspCandidate, roll_deg: float,
-                approach: np.ndarray, est: JointEstimate, amount: float) -> tuple[Plan | None, str]:
+                approach: np.ndarray, est: JointEstimate, amount: float, travel=None
+                ) -> tuple[Plan | None, str]:
     """An earlier plan's grasp, replayed: the same grasp frame on the object (``cand``'s point
     and normal, the gripper's ``roll_deg``), the same arm configurations (``approach``: the
     earlier plan's waypoints from its pre-grasp pose to its grasp pose), and a new motion by
-    ``amount`` along ``est`` from there (:func:`motion_path`). Nothing is planned again and
+    ``amount`` along ``est`` from there (:func:`motion_path`), reached by the earlier plan's
+    ``travel`` if it had one. Nothing is planned again and
     nothing checked for contacts: scoring's force reference, which measures what the true joint
     asks of this grasp. The plan, or None and why."""
     approach = np.atleast_2d(np.asarray(approach, float))
@@ -211,7 +216,20 @@ def replay_plan(kin, cfg: PlanningConfig, cand: GraspCandidate, roll_deg: float,
         return None, (f"the motion from the replayed grasp leaves the workspace or joint limits "
                       f"at {stop * 100:.0f}% of the path")
     return Plan(cand, float(roll_deg), T_g, approach[0], approach[-1], approach, s, q_path,
-                p_path), ""
+                p_path, travel=None if not travel else np.asarray(travel, float)), ""
+
+
+def retreat_travel(pw: PlanningWorld, q_start, q_pre) -> np.ndarray:
+    """The travel from ``q_start`` to ``q_pre`` by the arm's home posture: up into it where the
+    rail stands, the rail turned to the pre-grasp's, down to the pre-grasp pose ((4, n) joint
+    waypoints). For a grasp on the far side of the object from where the arm is (the fresh
+    view's pose), where the straight joint-space line sweeps the arm through the object."""
+    q_start, q_pre = np.asarray(q_start, float), np.asarray(q_pre, float)
+    up = np.array(pw.q_home, float)
+    up[0] = q_start[0]
+    over = np.array(pw.q_home, float)
+    over[0] = q_pre[0]
+    return np.array([q_start, up, over, q_pre])
 
 
 def _kink(q_path: np.ndarray, window: int = 3) -> tuple[float, int] | None:
@@ -311,16 +329,25 @@ def _plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate,
         if hits:
             reasons.append(f"roll {roll}: the arm touches {hits[0]} during the motion")
             continue
+        travel = None
         hits, at = pw.travel_contacts(q_start, pre.q)
         if hits:
-            reasons.append(f"roll {roll}: travel to pre-grasp meets {hits[0]} at "
-                           f"{100 * at:.0f}% of the way (the model kept "
-                           f"{1e3 * cfg.travel_clearance:.0f} mm off)")
-            continue
+            # the straight line sweeps the arm through the object: retreat, turn, come down
+            via = retreat_travel(pw, q_start, pre.q)
+            hits_via, at_via = pw.path_contacts(via)
+            if hits_via:
+                reasons.append(f"roll {roll}: travel to pre-grasp meets {hits[0]} at "
+                               f"{100 * at:.0f}% of the way, by the home posture "
+                               f"{hits_via[0]} at {100 * at_via:.0f}% (the model kept "
+                               f"{1e3 * cfg.travel_clearance:.0f} mm off)")
+                continue
+            travel = via
         touch = pw.gripper_contacts(ik.q)
-        cost = (touch > 0, float(np.sum(np.abs(pre.q - q_start))))
+        length = float(np.sum(np.abs(pre.q - q_start))) if travel is None else float(
+            np.sum(np.abs(np.diff(travel, axis=0))))
+        cost = (touch > 0, length)
         plan = Plan(cand, float(roll), T_g, pre.q, ik.q, np.array(approach), s, q_path, p_path,
-                    gripper_contacts=touch)
+                    gripper_contacts=touch, travel=travel)
         if best is None or cost < best[0]:
             best = (cost, plan)
     if best is None:
