@@ -117,7 +117,8 @@ def parser() -> argparse.ArgumentParser:
                         "ray://HOST:10001); without it a local cluster is started for the sweep")
     g.add_argument("--resume", action="store_true",
                    help="skip the runs that OUT already holds finished (same settings, same "
-                        "code); the others run")
+                        "code); the others run, and so does a run whose run.json this code "
+                        "does not read (another schema version: a warning says why)")
     p.add_argument("--poses", choices=POSE_SOURCES, default=default.poses,
                    help="camera poses: 'fk' the arm's forward kinematics, held fixed and checked "
                         "against the images; 'images' SfM from the images alone (the photo "
