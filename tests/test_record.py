@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 import sim  # noqa: F401
-from sim.evaluate import EvalConfig, gates, record, report, sweep
+from sim.evaluate import EvalConfig, gates, record, report, sweep, sweep_report
 from sim.evaluate.gates import GateCheck
 
 SAMPLE = Path(__file__).parent / "data" / "results_pliers_seed0.json"
@@ -211,3 +211,20 @@ def test_a_run_json_that_is_not_json_is_refused(tmp_path):
     with pytest.raises(record.SchemaError, match=r"run\.json: not JSON"):
         record.read_run(path)
 
+
+# ---------------------------------------------------------------------------- the readers
+
+
+@pytest.mark.parametrize("name", ["results_pliers_seed0", "results_sweep_light"])
+def test_the_report_of_a_committed_results_json_is_unchanged(name):
+    """results.md and the terminal table, read from the record, are byte for byte those the
+    readers wrote when they read the JSON as dicts (``data/<name>.md`` and ``.txt`` were written
+    by that code, at d13ff61, from ``data/<name>.json``). ``results_sweep_light`` is a sweep of
+    light runs (tests/test_sweep.py): passed, died, raised and not run, a perturbation."""
+    rec = record.read_results(SAMPLE.parent / f"{name}.json")
+    if rec.layout == "scenes":
+        markdown, table = report.markdown, report.terminal_table
+    else:
+        markdown, table = sweep_report.sweep_markdown, sweep_report.sweep_table
+    assert markdown(rec) == (SAMPLE.parent / f"{name}.md").read_text()
+    assert table(rec) + "\n" == (SAMPLE.parent / f"{name}.txt").read_text()

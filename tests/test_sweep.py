@@ -172,7 +172,7 @@ def test_worker_that_always_dies_is_reported_failed_not_missing(tmp_path, capsys
     assert died["status"] == "died" and died["attempts"] == 2
     assert "exit code 4" in died["result"]["error"]
     assert died["result"]["failed_gates"][0]["gate"] == "error"
-    assert cli.finish(res) == 1
+    assert cli.finish(record.Results.from_json(res)) == 1
     last = capsys.readouterr().out.strip().splitlines()[-1]
     assert last.startswith("FAIL: 1 of 2 run(s)") and "pliers seed 1 (worker died)" in last
 
@@ -450,12 +450,13 @@ def test_strength_chart_draws_runs_against_the_perturbation(tmp_path):
                             perturbation="noise", strength=n, label=f"noise_{n}")
               for n in (4, 12) for s in (0, 1)]
     axis = {"title": "image noise", "unit": "grey levels", "neutral": 0}
-    results = sweep.run_sweep(specs, tmp_path, sweep.SweepConfig(progress=False),
-                              run_fn=light_run, perturbations={"noise": axis})
+    sweep.run_sweep(specs, tmp_path, sweep.SweepConfig(progress=False), run_fn=light_run,
+                    perturbations={"noise": axis})
+    results = record.read_results(tmp_path / "results.json")
     pts = pictures._axis_points(results, "noise", axis)
     assert [x for x, _ in pts] == [0, 0, 4, 4, 12, 12]
     # the strength reaches the run: 0.01 deg of axis error per grey level of noise
-    assert [r["result"]["joints"][0]["axis_angle_deg"] for _, r in pts] == pytest.approx(
+    assert [r.result.joints[0].axis_angle_deg for _, r in pts] == pytest.approx(
         [0.1, 0.2, 0.14, 0.24, 0.22, 0.32])
     assert (tmp_path / "sweep_noise.png").stat().st_size > 1000
     assert "![noise](sweep_noise.png)" in (tmp_path / "results.md").read_text()

@@ -422,14 +422,14 @@ class _State:
         runs = []
         for spec in self.specs:
             rec = self.records.get(spec.run_id)
-            if rec is None:
-                runs.append({"id": spec.run_id, "group": spec.group, "spec": spec.describe(),
-                             "status": "not run", "attempts": 0, "worker": None,
-                             "dir": os.path.relpath(self.run_dir(spec), self.out),
-                             "result": None})
-            else:
-                runs.append(rec.to_json())
-        results = {"meta": meta, "runs": runs, "summary": sweep_report.sweep_summary(runs)}
+            if rec is None:  # no code: it did not run
+                rec = record.RunRecord.from_json(report._clean({
+                    "id": spec.run_id, "group": spec.group, "spec": spec.describe(),
+                    "status": "not run", "attempts": 0, "worker": None,
+                    "dir": os.path.relpath(self.run_dir(spec), self.out), "result": None}))
+            runs.append(rec)
+        results = record.Results(meta=record.Meta.from_json(report._clean(meta)), runs=runs,
+                                 summary=sweep_report.sweep_summary(runs))
         return sweep_report.write_sweep(results, self.out)
 
 
