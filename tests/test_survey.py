@@ -18,10 +18,11 @@ from sim.views import survey as survey_mod
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: The survey's sphere against the truth: the centre within this (m), the radius at least the
-#: truth's less a voxel (the hull holds the object) and at most this much larger.
-CENTRE_TOLERANCE = 0.015
-RADIUS_OVER = 0.06
+#: The survey's sphere against the truth: the centre within this share of the true radius (a
+#: ring's distance is several radii: 6% moves the object off the image centre by a few percent),
+#: the radius within this share of the truth (a ring 3% nearer or farther).
+CENTRE_TOLERANCE = 0.06
+RADIUS_TOLERANCE = 0.03
 
 
 def _true_vertices(model, data) -> np.ndarray:
@@ -50,9 +51,9 @@ def surveyed(request):
 
 def test_the_survey_finds_the_objects_sphere(surveyed):
     rig, (centre, radius), found, _ = surveyed
-    voxel = views.SurveyConfig().voxel
-    assert np.linalg.norm(found.centre - centre) <= CENTRE_TOLERANCE, (found.centre, centre)
-    assert radius - voxel <= found.radius <= radius * (1.0 + RADIUS_OVER), (found.radius, radius)
+    assert np.linalg.norm(found.centre - centre) <= CENTRE_TOLERANCE * radius, (found.centre,
+                                                                               centre)
+    assert abs(found.radius / radius - 1.0) <= RADIUS_TOLERANCE, (found.radius, radius)
     assert found.views >= 2 * views.SurveyConfig().min_views
 
 

@@ -58,11 +58,13 @@ class SurveyConfig:
     """height of the carved volume above the table top (m): the tallest object the survey finds"""
     reach: float = 0.1
     """how far beyond the table top's rim the carved volume reaches (m): an object may overhang"""
-    voxel: float = 0.004
+    voxel: float = 0.003
     """edge of the carving's voxels (m)"""
+    coarse_voxel: float = 0.009
+    """edge of the first pass's voxels (m): it only finds the box the second pass carves"""
     threshold: int = 10
     """a pixel is the object's where a colour channel differs from the plate by more (of 255)"""
-    dilate_px: int = 2
+    dilate_px: int = 1
     """silhouettes are widened by this many pixels before carving (the hull must hold the object:
     a pixel's worth of antialiasing must not carve it)"""
     min_views: int = 3
@@ -136,10 +138,10 @@ def _silhouette(color: np.ndarray, plate: np.ndarray, own: np.ndarray,
 
 
 def _carve(masks, cameras, K, width, height, lower, upper, config: SurveyConfig,
-           column=None):
+           column=None, voxel: float | None = None):
     """Voxel centres (n, 3) of the visual hull within the box ``lower``-``upper`` (and, with
     ``column`` = (centre xy, radius), within that vertical cylinder)."""
-    v = config.voxel
+    v = config.voxel if voxel is None else voxel
     xs, ys, zs = (np.arange(lo + v / 2, hi, v) for lo, hi in zip(lower, upper, strict=True))
     X, Y = np.meshgrid(xs, ys, indexing="ij")
     inside = np.ones(X.shape, dtype=bool)
@@ -293,11 +295,11 @@ def survey_object(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKine
         lower = np.r_[top[:2] - r_vol, top[2]]
         upper = np.r_[top[:2] + r_vol, top[2] + config.height]
         pts = _carve(masks, cameras, K, width, height, lower, upper, config,
-                     column=(top[:2], r_vol))
+                     column=(top[:2], r_vol), voxel=config.coarse_voxel)
         if len(pts) == 0:
             raise SurveyError("the survey's silhouettes do not agree on any point above the "
                               "table: the object could not be located")
-        centre1, radius1 = _sphere(pts, config.voxel)
+        centre1, radius1 = _sphere(pts, config.coarse_voxel)
         d_frame = ring_distance(radius1, K, width, height, config.frame_fill,
                                 plan_config.min_ring_distance)
         distances = [d for d in np.arange(d_frame, config.frame_min_distance - 1e-9,
@@ -306,8 +308,10 @@ def survey_object(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKine
                               config.views_per_elevation, distances or [d_frame], plan_config,
                               len(first), first[-1].q)
         photograph(second)
-        half = config.voxel / 2
-        lo1, hi1 = pts.min(axis=0) - half, pts.max(axis=0) + half
+        # the coarse hull's box, a coarse voxel wider on every side (a part thinner than a coarse
+        # voxel may have slipped between its centres)
+        lo1 = pts.min(axis=0) - 1.5 * config.coarse_voxel
+        hi1 = pts.max(axis=0) + 1.5 * config.coarse_voxel
         pts = _carve(masks, cameras, K, width, height, np.maximum(lo1, lower),
                      np.minimum(hi1, upper), config, column=(top[:2], r_vol))
     finally:
@@ -327,17 +331,19 @@ def survey_object(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKine
     if touched:
         log.info("survey: the object reaches the image border in %d of the framing views",
                  len(touched))
-    centre, radius = _sphere(pts, config.voxel)
+    # to the voxels' centres: the silhouettes were widened (dilate_px) to keep the hull a hull,
+    # and a voxel whose centre is in the hull holds the object's edge within half a voxel
+    centre, radius = _sphere(pts, config.voxel, corner=0.0)
     log.info("survey: %d + %d views, hull of %d voxels, centre %s, radius %.3f m", len(first),
              len(second), len(pts), np.round(centre, 3), radius)
     return Survey(centre=centre, radius=radius, lower=lower_h, upper=upper_h, voxels=len(pts),
                   views=len(masks), q=[v.q.copy() for v in (*first, *second)])
 
 
-def _sphere(pts: np.ndarray, voxel: float) -> tuple[np.ndarray, float]:
+def _sphere(pts: np.ndarray, voxel: float, corner: float = 1.0) -> tuple[np.ndarray, float]:
     """Centre of the voxels' bounding box and the distance from it to the farthest voxel
-    corner."""
+    corner (``corner`` 1; 0: the farthest voxel centre)."""
     half = voxel / 2
     centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
-    far = np.abs(pts - centre) + half  # the farthest corner of each voxel
+    far = np.abs(pts - centre) + half * corner  # the farthest corner of each voxel (or its centre)
     return centre, float(np.sqrt((far ** 2).sum(axis=1).max()))
