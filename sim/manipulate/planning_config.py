@@ -98,6 +98,9 @@ class PlanningConfig:
     """rolls of the gripper about the approach axis tried per candidate (deg)"""
     max_candidates: int = 40
     """candidates planned, in order of preference, before giving up"""
+    pull_alignment_deg: float = 30.0
+    """candidates whose normal lies within this angle (deg) of the motion's direction at their
+    point rank first (:func:`sim.manipulate.planning.rank`)"""
     facing_min_turn: float = 0.35
     """the last start of a candidate's IK, home with the rail turned to the grasp's side
     (:func:`sim.manipulate.planning.facing_start`), is tried only when the rail turns by at
