@@ -6,7 +6,8 @@ with ``artrecon reconstruct ... --set STAGE.FIELD=VALUE`` or a scene's
 each value against :data:`RANGES` before any work, so that a value no stage can run with
 (``nan``, ``inf``, ``dense.downsample=1000``, ``segmentation.max_hypotheses=0``) is refused at
 once, naming the field's valid range, instead of failing a minute later with a message about the
-images. Every tunable field has a row (a test checks it); a field without one cannot be set.
+images. Every tunable field has a row (a test checks it); a field without one cannot be set. A
+tuple field's row (:class:`ListOf`) takes comma-separated values and bounds each.
 
 The ranges bound what the code can run with and what means something; they are not advice:
 the defaults (each field's docstring says why) are what the method is measured with.
@@ -30,7 +31,7 @@ from artrecon.joints import JointConfig
 from artrecon.segment import SegmentationConfig
 from artrecon.sfm import SfMConfig
 
-__all__ = ["Range", "Choice", "RANGES", "ORDERED", "parse_settings", "check_setting",
+__all__ = ["Range", "Choice", "ListOf", "RANGES", "ORDERED", "parse_settings", "check_setting",
            "apply_settings", "ReconstructConfig", "with_settings", "jsonable"]
 
 
@@ -72,6 +73,21 @@ class Choice:
 
     def text(self) -> str:
         return "one of " + ", ".join(repr(o) for o in self.options)
+
+
+@dataclass(frozen=True)
+class ListOf:
+    """The valid values of a list setting (a tuple field): each value within :attr:`item`,
+    given as comma-separated values (``--set views.elevations_deg=20,40,60``)."""
+
+    item: Range
+    """The range of each value."""
+    length: int | None = None
+    """How many values the field takes (None: one or more)."""
+
+    def text(self) -> str:
+        count = "one or more values" if self.length is None else f"{self.length} values"
+        return f"{count} separated by commas, each {self.item.text()}"
 
 
 def _num(x) -> str:
@@ -220,7 +236,8 @@ def parse_settings(items: list[str], example: str = "dense.downsample=1"
                    ) -> dict[str, float | str]:
     """``["dense.downsample=1", "sfm.matching=exhaustive"]`` -> ``{"dense.downsample": 1.0,
     "sfm.matching": "exhaustive"}``: the ``--set STAGE.FIELD=VALUE`` items of a command line,
-    numbers as float, other values as text (InputError, naming ``example``, if an item is not
+    numbers as float, other values as text (a list such as ``20,40,60`` too: its row,
+    :class:`ListOf`, splits it; InputError, naming ``example``, if an item is not
     STAGE.FIELD=VALUE; names, kinds and ranges are checked by :func:`apply_settings`)."""
     out: dict[str, float | str] = {}
     for item in items:
@@ -235,34 +252,40 @@ def parse_settings(items: list[str], example: str = "dense.downsample=1"
     return out
 
 
-def check_setting(key: str, value, default, ranges: Mapping[str, Range | Choice] = RANGES):
+def check_setting(key: str, value, default,
+                  ranges: Mapping[str, Range | Choice | ListOf] = RANGES):
     """``value`` checked against the row of ``key`` and converted to the kind of ``default``.
 
     Parameters
     ----------
     key : str
         ``"stage.field"``.
-    value : float, int, bool or str
-        As given (the command line passes numbers as float, text as str).
+    value : float, int, bool, str, or a list or tuple (a :class:`ListOf` row)
+        As given (the command line passes numbers as float, text as str; a list row takes
+        comma-separated text, one number, or a sequence).
     default
-        The field's default value (its kind: bool, int, float or str).
+        The field's default value (its kind: bool, int, float, str, or a tuple of numbers).
     ranges : dict
         The table of rows (default :data:`RANGES`, the reconstruction's; the simulation's
         capture has its own).
 
     Returns
     -------
-    bool, int, float or str
+    bool, int, float, str, or a tuple (a :class:`ListOf` row: of the kind of the default's
+    values)
 
     Raises
     ------
     InputError
-        No row for the field, a value of the wrong kind, not finite, or out of range; the
-        message gives the valid range.
+        No row for the field, a value of the wrong kind, not finite, or out of range (a list:
+        a value of it, naming which, or too many or too few values); the message gives the
+        valid range.
     """
     row = ranges.get(key)
     if row is None:
         raise InputError(f"setting {key!r} cannot be set (it has no checked range)")
+    if isinstance(row, ListOf):
+        return _check_list(key, value, default, row)
     if isinstance(row, Choice):
         if not isinstance(value, str) or value not in row.options:
             raise InputError(f"setting {key}={_num(value)}: {key} takes {row.text()}, default "
@@ -302,7 +325,55 @@ def check_setting(key: str, value, default, ranges: Mapping[str, Range | Choice]
     return number if isinstance(default, int) else float(number)
 
 
-def apply_settings(config, settings: dict, ranges: Mapping[str, Range | Choice] = RANGES,
+def _check_list(key: str, value, default: tuple, row: ListOf) -> tuple:
+    """:func:`check_setting` of a list setting: every value in ``row.item``, as many as
+    ``row.length``, converted to the kind of the default's values."""
+    if isinstance(value, str):
+        parts = [part.strip() for part in value.split(",")]
+    elif isinstance(value, (list, tuple)):
+        parts = list(value)
+    else:  # one number: the command line reads "30" as 30.0
+        parts = [value]
+    given = ",".join(_shown(part) for part in parts)
+    kind = type(default[0]) if default else float
+
+    def refuse(problem: str):
+        raise InputError(f"setting {key}={given}: {problem}; {key} takes {row.text()}, default "
+                         f"{','.join(_num(d) for d in default)}")
+
+    if row.length is not None and len(parts) != row.length:
+        refuse(f"{len(parts)} value{'s' if len(parts) != 1 else ''}, not {row.length}")
+    if not parts:
+        refuse("no value")
+    out = []
+    for i, part in enumerate(parts, 1):
+        shown = f"value {i} ({_shown(part)})"
+        if isinstance(part, str) and not part:
+            refuse(f"value {i} is empty")
+        try:
+            number = float(part)
+        except (TypeError, ValueError):
+            number = None
+        if number is None or isinstance(part, bool):
+            refuse(f"{shown} is not a number")
+        if not math.isfinite(number):
+            refuse(f"{shown} is not a finite number")
+        if kind is int and number != int(number):
+            refuse(f"{shown} is not a whole number")
+        if not row.item.holds(number):
+            refuse(f"{shown} is out of range")
+        out.append(int(number) if kind is int else float(number))
+    return tuple(out)
+
+
+def _shown(part) -> str:
+    """A value of a list setting as the user wrote it (numbers as :func:`_num`)."""
+    if isinstance(part, (int, float)) and not isinstance(part, bool):
+        return _num(part)
+    return str(part)
+
+
+def apply_settings(config, settings: dict, ranges: Mapping[str, Range | Choice | ListOf] = RANGES,
                    ordered: tuple[tuple[str, str], ...] = ORDERED):
     """A copy of a config of stage configs (:class:`ReconstructConfig`, or another frozen
     dataclass whose fields are configs, with its own table ``ranges`` and ``ordered`` pairs)

@@ -116,30 +116,30 @@ def combine(rows: list[dict]) -> dict:
     return out
 
 
-def summarise(res: dict, gates: dict) -> dict:
-    """The figures of one run: first true joint's errors, gates, refusal or failure."""
-    row = {"error": res.get("error"), "axis_angle_deg": None, "axis_position_mm": None,
+def summarise(res, gates: dict) -> dict:
+    """The figures of one run (its :class:`sim.evaluate.record.SceneRecord`): first true
+    joint's errors, gates, refusal or failure."""
+    row = {"error": res.error, "axis_angle_deg": None, "axis_position_mm": None,
            "state_error": None, "state_unit": None, "joint_passes": False,
-           "segmentation_accuracy": res.get("segmentation_accuracy"),
-           "scale_error_pct": res.get("scale_error_pct"),
+           "segmentation_accuracy": res.segmentation_accuracy,
+           "scale_error_pct": res.scale_error_pct,
            "camera_position_error_mm": None}
-    joints = res.get("joints") or []
+    joints = res.joints or []
     if joints:
         j = joints[0]
-        row.update(axis_angle_deg=j.get("axis_angle_deg"),
-                   axis_position_mm=j.get("axis_position_mm"), state_error=j.get("state_error"),
-                   state_unit=j.get("state_error_unit"), state_true=j.get("state_true"),
-                   joint_passes=all(bool(x.get("passes")) for x in joints),
-                   estimated=j.get("estimated_joint") is not None,
-                   type_true=j.get("type_true"), type_estimated=j.get("type_estimated"))
-    ms = res.get("model_summary") or {}
-    row["matches"] = ms.get("matches")
-    row["match_outliers"] = ms.get("match_outliers")
-    if res.get("perturb_matches"):
-        row["matches_made_wrong"] = res["perturb_matches"].get("made_wrong")
-        row["match_outliers"] = res["perturb_matches"].get("outliers_found")
-    cpe = res.get("camera_pose_error") or {}
-    row["camera_position_error_mm"] = cpe.get("position_median_mm")
+        row.update(axis_angle_deg=j.axis_angle_deg, axis_position_mm=j.axis_position_mm,
+                   state_error=j.state_error, state_unit=j.state_error_unit,
+                   state_true=j.state_true, joint_passes=all(bool(x.passes) for x in joints),
+                   estimated=j.estimated_joint is not None, type_true=j.type_true,
+                   type_estimated=j.type_estimated)
+    ms = res.model_summary
+    row["matches"] = ms and ms.matches
+    row["match_outliers"] = ms and ms.match_outliers
+    if res.perturb_matches:
+        row["matches_made_wrong"] = res.perturb_matches.get("made_wrong")
+        row["match_outliers"] = res.perturb_matches.get("outliers_found")
+    cpe = res.camera_pose_error
+    row["camera_position_error_mm"] = cpe and cpe.position_median_mm
     row["segmentation_passes"] = (row["segmentation_accuracy"] is not None
                                   and row["segmentation_accuracy"]
                                   >= gates["segmentation_accuracy"])
@@ -152,7 +152,7 @@ def summarise(res: dict, gates: dict) -> dict:
     # given poses: how far the images' matches lie from the poses' epipolar lines (the worse
     # configuration; a refusal names the configuration it stopped at)
     m = re.search(r"median ([0-9.]+) px from the epipolar lines", row["error"] or "")
-    agree = [a.get("epipolar_median_px") for a in (ms.get("pose_agreement") or {}).values()]
+    agree = [a.get("epipolar_median_px") for a in ((ms and ms.pose_agreement) or {}).values()]
     agree = [a for a in agree if a is not None]
     row["pose_epipolar_px"] = float(m.group(1)) if m else max(agree) if agree else None
     return row
@@ -348,7 +348,7 @@ def write_report(out: Path, args, table: dict, gates: dict) -> None:
 
 
 def main(argv=None) -> int:
-    from sim.evaluate import EvalConfig, sweep
+    from sim.evaluate import EvalConfig, record, sweep
     from sim.evaluate.config import POSE_SOURCES
 
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -393,12 +393,16 @@ def main(argv=None) -> int:
                    if name == "motion" else 0)
         axes[name] = {"title": title, "unit": unit, "neutral": neutral}
     specs = base + [sp for runs in plan.values() for _, seeds in runs for sp in seeds]
-    if args.report_only:
+    if args.report_only:  # a run.json this code does not read is refused, not guessed at
         records = {}
         for sp in specs:
             path = out / "runs" / sp.run_id / "run.json"
             if path.is_file():
-                records[sp.run_id] = json.loads(path.read_text())
+                try:
+                    records[sp.run_id] = record.read_run(path)
+                except (OSError, record.SchemaError) as err:
+                    p.error(f"cannot report run {sp.run_id}: {err} (without --report-only "
+                            "it is run again)")
         if not any(sp.run_id in records for sp in base):
             p.error(f"no baseline run in {out}; run without --report-only first")
     else:
@@ -410,10 +414,11 @@ def main(argv=None) -> int:
                 command=f"python benchmarks/bench_robustness.py {' '.join(sys.argv[1:])}")
         except (ValueError, sweep.SweepError) as err:
             p.error(str(err))
-        records = {r["id"]: r for r in results["runs"] if r["status"] != "not run"}
+        records = {r.id: r for r in record.Results.from_json(results).runs
+                   if r.status != "not run"}
 
     def row(specs_):
-        rows = [summarise(records[sp.run_id]["result"], GATES) for sp in specs_
+        rows = [summarise(records[sp.run_id].result, GATES) for sp in specs_
                 if sp.run_id in records]
         return combine(rows) if rows else None
 

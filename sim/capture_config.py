@@ -8,7 +8,8 @@ the arm's motion (:class:`~sim.capture.arm.Arm`), the image set's check that the
 
 ``python -m sim.capture`` and ``python -m sim.evaluate`` change them with ``--set
 capture.FIELD=VALUE`` (a field of CaptureConfig) and ``--set views.FIELD=VALUE`` (of
-ViewPlanConfig): :func:`capture_settings` checks each against its row of :data:`RANGES` with
+ViewPlanConfig; a list field takes comma-separated values, ``views.elevations_deg=20,40,60``):
+:func:`capture_settings` checks each against its row of :data:`RANGES` with
 artrecon's own settings code (:func:`artrecon.settings.apply_settings`), so that a value the
 capture cannot run with is refused at once, naming the valid range. The ranges bound what the
 code can run with and what means something; the defaults are what the method is measured with.
@@ -26,7 +27,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from artrecon.errors import InputError
-from artrecon.settings import Range, apply_settings
+from artrecon.settings import ListOf, Range, apply_settings
 from sim.views import ELEVATION_LIMITS_DEG, ViewPlanConfig
 
 _OPEN = dict(low_open=True)
@@ -73,8 +74,10 @@ class CaptureConfig:
 
 
 #: One row per field that ``--set`` changes: ``capture.FIELD`` (:class:`CaptureConfig`) and
-#: ``views.FIELD`` (:class:`sim.views.ViewPlanConfig`).
-RANGES: dict[str, Range] = {
+#: ``views.FIELD`` (:class:`sim.views.ViewPlanConfig`); a list field's row (:class:`ListOf`)
+#: bounds each of its values (and their number where the field needs one), the field's own
+#: check the rest (fill within fill_range, the first roll 0).
+RANGES: dict[str, Range | ListOf] = {
     # --- capture (CaptureConfig)
     "capture.move_speed": Range(0, 10, "rad/s, the fastest joint at mid-move", **_OPEN),
     "capture.settle_speed": Range(0, 1, "rad/s", **_OPEN),
@@ -83,7 +86,17 @@ RANGES: dict[str, Range] = {
                                       **_OPEN),
     "capture.fresh_elevation_deg": Range(*ELEVATION_LIMITS_DEG, "degrees above the object's "
                                          "centre"),
+    "capture.fresh_azimuth_offsets_deg": ListOf(Range(-180, 180, "degrees off the arm's "
+                                                      "azimuth, tried in this order")),
     # --- views (sim.views.ViewPlanConfig)
+    "views.elevations_deg": ListOf(Range(*ELEVATION_LIMITS_DEG, "degrees above the object's "
+                                         "centre, a full ring each")),
+    "views.top_elevations_deg": ListOf(Range(*ELEVATION_LIMITS_DEG, "degrees above the "
+                                             "object's centre, a top ring each")),
+    "views.fill_range": ListOf(Range(0.05, 1, "a share of the shorter image side: low, high"),
+                               length=2),
+    "views.roll_candidates_deg": ListOf(Range(-180, 180, "degrees about the optical axis, "
+                                              "tried in this order, the first 0")),
     "views.fill": Range(0.05, 1, "a share of the shorter image side, within fill_range"),
     "views.max_elevation_shift_deg": Range(0, 30, "degrees"),
     "views.fill_step": Range(0, 1, "a share of the shorter image side", **_OPEN),
@@ -101,9 +114,6 @@ RANGES: dict[str, Range] = {
 NOT_SET = {
     "views.views_per_ring": "views per ring are set by --views",
     "views.seed": "the seed is set by --seed",
-    **{f"views.{name}": "a list of values, not settable from the command line"
-       for name in ("elevations_deg", "top_elevations_deg", "fill_range", "roll_candidates_deg")},
-    "capture.fresh_azimuth_offsets_deg": "a list of values, not settable from the command line",
 }
 
 
@@ -112,7 +122,8 @@ SET_HELP = ("change one capture setting (repeatable): capture.FIELD=VALUE, a fie
             "sim.capture.CaptureConfig (the arm's motion, the object's drift, the fresh view), "
             "or views.FIELD=VALUE, a field of sim.views.ViewPlanConfig (IK restarts, clearance, "
             "the ring search), each within its range in sim.capture_config.RANGES, e.g. "
-            "views.clearance_m=0.02")
+            "views.clearance_m=0.02; a list as comma-separated values, e.g. "
+            "views.elevations_deg=20,40,60")
 #: The example a malformed ``--set`` item is shown.
 SET_EXAMPLE = "views.clearance_m=0.02"
 

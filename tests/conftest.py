@@ -27,9 +27,9 @@ PER_SCENE_MODULES = ("tests/test_gates.py", "tests/test_author_gates.py")
 #: modules fill the gaps at the end instead of a long one starting last. A scene name stands for
 #: its per-scene unit, a file name for its module. The rest follow by test count.
 LONGEST_FIRST = ("cabinet_door_only", "truck", "test_photo_route.py", "scissors", "chest",
-                 "cabinet", "drawer", "scraper_truck", "mm_cabinet", "pliers", "pliers_panda",
-                 "barrett_hand", "test_configuration.py", "test_faults.py", "test_sweep.py",
-                 "test_dense.py", "test_manipulate_model.py", "test_bad_input.py",
+                 "cabinet", "drawer", "scraper_truck", "mm_cabinet", "truck_panda", "pliers",
+                 "pliers_panda", "barrett_hand", "test_configuration.py", "test_faults.py",
+                 "test_sweep.py", "test_dense.py", "test_manipulate_model.py", "test_bad_input.py",
                  "test_confidence.py", "test_capture.py", "test_reachability.py")
 
 

@@ -66,7 +66,9 @@ def test_image_set_layout_and_fk_poses(pliers_set):
         assert (out / "ground_truth" / "depth" / im["file"]).is_file()
         # the recorded pose is the arm's FK at the recorded joint angles ...
         q = np.array(im["q"])
-        assert np.all(q >= kin.lower - 1e-9) and np.all(q <= kin.upper + 1e-9)
+        # measured in physics: a view solved at a joint's limit (PUMA joint 4 at -225 deg) is
+        # held there by MuJoCo's soft limit constraint, which gives by some 1e-8 rad
+        assert np.all(q >= kin.lower - 1e-6) and np.all(q <= kin.upper + 1e-6)
         np.testing.assert_allclose(im["T_world_camera"], kin.camera_pose(q), atol=1e-12)
         # ... and agrees with MuJoCo's camera, which rendered the image
         T_fk, T_true = np.array(im["T_world_camera"]), np.array(gt["T_world_camera"])
@@ -399,14 +401,16 @@ def test_candidate_rings_prefer_the_desired_elevation_then_the_preferred_fill():
 
 
 def test_planner_moves_a_ring_the_arm_cannot_reach_at_the_preferred_fill():
-    """Looking nearly straight down (85 degrees) on the truck from the preferred distance is at
-    the edge of the arm's reach on its rail (the quick probe of the ring fails); the planner takes
-    another distance in the band, where every view is reached."""
+    """Looking nearly straight down (85 degrees) on the truck from the distance where it fills
+    0.55 of the image is beyond the arm's reach on its rail (the quick probe of the ring fails);
+    the planner takes another distance in the band, where every view is reached. (At the
+    default fill 0.6 the ring around the survey's sphere is reachable.)"""
     sc = load_scene("truck")
     data = sc.make_data("a")
     kin = robot.load_arm_kinematics(sc.model)
     K, (w, h) = mujoco_camera_intrinsics(sc.model, kin.spec.prefix + kin.spec.camera)
-    cfg = views.ViewPlanConfig(views_per_ring=8, elevations_deg=(), top_elevations_deg=(85.0,))
+    cfg = views.ViewPlanConfig(views_per_ring=8, elevations_deg=(), top_elevations_deg=(85.0,),
+                               fill=0.55)
     plan = views.plan_capture(sc.model, data, kin, K, w, h, cfg)
     (ring,) = plan.rings
     assert len(plan.views) == ring.n_views and not plan.unreachable

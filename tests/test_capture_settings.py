@@ -16,7 +16,7 @@ import sim  # noqa: F401
 import sim.capture
 import sim.capture.cli
 from artrecon.errors import InputError
-from artrecon.settings import check_setting
+from artrecon.settings import ListOf, Range, check_setting
 from sim.capture import CaptureConfig, CaptureResult
 from sim.capture.rig import make_rig
 from sim.capture_config import NOT_SET, RANGES, CaptureSettings, capture_settings
@@ -65,7 +65,15 @@ def test_settings_are_parsed_converted_and_listed_as_changed():
     (["views.fill=0.9"], ["fill must lie in fill_range (0.45, 0.75), got 0.9"]),
     (["views.seed=3"], ["'views.seed' cannot be set with --set: the seed is set by --seed"]),
     (["views.views_per_ring=18"], ["views per ring are set by --views"]),
-    (["views.elevations_deg=30"], ["a list of values, not settable from the command line"]),
+    (["views.elevations_deg=20,95,60"], [
+        "setting views.elevations_deg=20,95,60: value 2 (95) is out of range; "
+        "views.elevations_deg takes one or more values separated by commas, each a value in "
+        "[-80, 85]", "default 20,40,60"]),
+    (["views.fill_range=0.5"], ["views.fill_range=0.5: 1 value, not 2", "takes 2 values",
+                                "each a value in [0.05, 1]"]),
+    (["capture.fresh_azimuth_offsets_deg=10,,20"], ["value 2 is empty", "[-180, 180]"]),
+    (["views.roll_candidates_deg=0,ninety"], ["value 2 (ninety) is not a number"]),
+    (["views.roll_candidates_deg=90,0"], ["roll_candidates_deg must start with 0"]),
     (["views.clearance_m"], ["--set 'views.clearance_m': expected STAGE.FIELD=VALUE, e.g. "
                              "views.clearance_m=0.02"]),
 ])
@@ -136,11 +144,14 @@ def pliers():
 
 @pytest.fixture
 def capture_set(tmp_path):
-    """A capture folder as the fresh view reads it: the arm's joints at its last image."""
+    """A capture folder as the fresh view reads it: the arm's joints at its last image and the
+    object's sphere its survey found."""
     folder = tmp_path / "capture_a" / "set"
     folder.mkdir(parents=True)
     (folder / "cameras.json").write_text(json.dumps({"images": [
         {"file": "000.png", "q": [0.1] * 7}]}))
+    (folder / "capture.json").write_text(json.dumps({"object_sphere": {
+        "centre": [0.01, 0.02, 0.5], "radius": 0.12, "survey": None}}))
     return folder
 
 
@@ -163,6 +174,8 @@ def test_the_fresh_view_gets_the_evaluations_settings(pliers, capture_set, tmp_p
     assert seen["capture_config"].fresh_elevation_deg == 45.0
     assert seen["plan_config"] == ViewPlanConfig(views_per_ring=18, seed=3, clearance_m=0.02)
     assert seen["seed"] == 3 and seen["q_start"] == [0.1] * 7
+    # it looks where the capture's survey found the object (issue 21), not at the truth
+    assert seen["target"] == ([0.01, 0.02, 0.5], 0.12)
 
 
 def test_the_captures_get_the_evaluations_settings(pliers, tmp_path, monkeypatch):
@@ -215,3 +228,60 @@ def test_the_plan_cache_key_holds_the_views_settings(pliers):
 def test_capture_settings_refuse_a_bad_value_in_code_too():
     with pytest.raises(InputError, match="out of range"):
         capture_settings({"capture.object_drift_tol": 1.0})
+
+
+# ---------------------------------------------------------------------------- list settings
+
+
+def test_a_list_setting_round_trips_from_the_command_line_to_the_records_and_keys(pliers):
+    """``--set views.elevations_deg=20,40`` (comma-separated values) reaches the view plan as a
+    tuple of floats, and the records and cache keys as a list; the defaults given explicitly are
+    the default settings, whose records and keys hold no settings at all."""
+    lists = ["--set", "views.elevations_deg=20,40", "--set", "views.fill_range=0.5, 0.7",
+             "--set", "capture.fresh_azimuth_offsets_deg=-10"]
+    ev = cli.config_from_args(cli.parser().parse_args(["pliers", *lists]))
+    assert ev.view_plan() == ViewPlanConfig(elevations_deg=(20.0, 40.0), fill_range=(0.5, 0.7))
+    assert ev.capture_settings.capture == CaptureConfig(fresh_azimuth_offsets_deg=(-10.0,))
+    changed = {"views.elevations_deg": [20.0, 40.0], "views.fill_range": [0.5, 0.7],
+               "capture.fresh_azimuth_offsets_deg": [-10.0]}
+    assert stages._settings_inputs(ev) == {"capture_settings": changed}
+    assert RunSpec("pliers", ev).describe()["config"]["capture_settings"] == changed
+    assert record.Meta.from_json(json.loads(json.dumps(runner.run_meta(ev, "cmd")))
+                                 ).capture_settings == changed
+    # the defaults, given as lists, change nothing: not the settings, not a key
+    defaults = cli.config_from_args(cli.parser().parse_args([
+        "pliers", "--set", "views.elevations_deg=20,40,60", "--set",
+        "views.top_elevations_deg=70", "--set", "views.fill_range=0.45,0.75", "--set",
+        "views.roll_candidates_deg=0,90,-90,180,45,-45,135,-135", "--set",
+        "capture.fresh_azimuth_offsets_deg=5,15,-5,-15,25,-25,35,-35"]))
+    assert defaults.capture_settings == CaptureSettings()
+    assert stages._capture_inputs(pliers, "a", defaults, "h") == stages._capture_inputs(
+        pliers, "a", EvalConfig(), "h")
+    assert RunSpec("pliers", defaults).describe() == RunSpec("pliers", EvalConfig()).describe()
+
+
+@pytest.mark.parametrize("value, default, row, result", [
+    ("1,2", (3, 4), ListOf(Range(0, 10), length=2), (1, 2)),  # whole numbers stay int
+    ([1.5, 2], (0.5, 1.0), ListOf(Range(0, 10)), (1.5, 2.0)),  # a sequence, in code
+    (3.0, (0.5,), ListOf(Range(0, 10)), (3.0,)),  # one number, as the command line reads it
+])
+def test_check_setting_converts_a_list_to_a_tuple_of_its_defaults_kind(value, default, row,
+                                                                       result):
+    out = check_setting("x.values", value, default, {"x.values": row})
+    assert out == result and [type(v) for v in out] == [type(v) for v in result]
+
+
+@pytest.mark.parametrize("value, problem", [
+    ("1.5,2", "value 1 (1.5) is not a whole number"),
+    ("1,inf", "value 2 (inf) is not a finite number"),
+    ([1, True], "value 2 (True) is not a number"),
+    ([1, None], "value 2 (None) is not a number"),
+    ("1,2,3", "3 values, not 2"),
+    ((), "0 values, not 2"),
+])
+def test_check_setting_names_the_bad_value_of_a_list_and_its_range(value, problem):
+    with pytest.raises(InputError) as info:
+        check_setting("x.values", value, (3, 4), {"x.values": ListOf(Range(0, 10), length=2)})
+    assert problem in str(info.value)
+    assert str(info.value).endswith("x.values takes 2 values separated by commas, each a value "
+                                    "in [0, 10], default 3,4")

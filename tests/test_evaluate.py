@@ -17,7 +17,7 @@ import sim  # noqa: F401
 from artrecon.model import ArticulatedModel, Joint, Link
 from artrecon.procrustes import Similarity
 from sim import cache, evaluate
-from sim.evaluate import pictures, report
+from sim.evaluate import pictures, record, report
 from sim.scene import load_scene
 
 
@@ -367,7 +367,7 @@ def test_results_json_shape_and_report(tmp_path):
     assert "| toy | hinge |" in md and "**Error** in stage" in md
     assert ("- segmentation: 0.970 against the rendered link labels (points seen in A: 0.980 of "
             "90, in B: 0.900 of 10; 0.100 of the points left out") in md
-    table = report.terminal_table(res)
+    table = report.terminal_table(record.read_results(tmp_path / "results.json"))
     assert "29.0/30.0 deg" in table and "ERROR capture_a" in table
 
 
@@ -414,11 +414,13 @@ def test_report_gives_the_kinematic_tree_verdict(tmp_path):
     assert "static joints" in chain and chain.split("static joints")[1].split("\n")[0].endswith(
         ": none")
     assert "kinematic tree" not in md.split("## broken")[1].split("## ")[0]
-    assert report.tree_verdict(back["scenes"]["chain"]) in report.terminal_table(back)
+    back = record.read_results(tmp_path / "results.json")
+    assert report.tree_verdict(back.scenes["chain"]) in report.terminal_table(back)
 
 
 def test_error_chart_marks_failures():
-    bars = pictures.error_bars(_results()["scenes"]["toy"], evaluate.GATES)
+    toy = record.SceneRecord.from_json(report.jsonable_scene(_results()["scenes"]["toy"]))
+    bars = pictures.error_bars(toy, evaluate.GATES)
     labels = [b[0] for b in bars]
     assert labels == ["hinge axis angle", "hinge axis position", "hinge state",
                       "segmentation miss", "points off the object", "manipulation rel. err"]

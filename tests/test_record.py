@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 import sim  # noqa: F401
-from sim.evaluate import EvalConfig, gates, record, report, sweep
+from sim.evaluate import EvalConfig, gates, record, report, sweep, sweep_report
 from sim.evaluate.gates import GateCheck
 
 SAMPLE = Path(__file__).parent / "data" / "results_pliers_seed0.json"
@@ -160,3 +160,71 @@ def test_one_layout_at_a_time():
         record.Results(scenes={}, runs=[], summary=[], meta=record.Meta())
     with pytest.raises(record.SchemaError, match="not neither"):
         record.Results(meta=record.Meta())
+
+
+# ---------------------------------------------------------------------------- a sweep's run.json
+
+
+def _run() -> record.RunRecord:
+    spec = record.RunSpecRecord(scene="pliers", config={"seed": 0}, perturbation="",
+                                strength=None, label="")
+    return record.RunRecord(id="pliers-seed0", group="pliers", spec=spec, code="c0ffee",
+                            status="passed", attempts=1, worker={"host": "h", "pid": 1},
+                            dir="runs/pliers-seed0", result=_scene(passed=True, failed_gates=[]))
+
+
+def test_a_run_json_round_trips_with_its_schema_version(tmp_path):
+    rec = _run()
+    data = record.run_file(rec)
+    assert list(data)[:2] == ["schema_version", "id"]
+    assert data["schema_version"] == record.SCHEMA_VERSION
+    path = tmp_path / "run.json"
+    path.write_text(json.dumps(data, indent=2))
+    assert record.read_run(path) == rec
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d.pop("schema_version"),
+     "run.json has no schema_version: it was written before sim.evaluate versioned its results; "
+     "this code reads schema_version 1"),
+    (lambda d: d.update(schema_version=2), "run.json is of schema_version 2; this code reads"),
+    (lambda d: d.update(note="by hand"),
+     "run.json: 'note' is not a key of RunRecord (results.json schema_version 1); its keys are "
+     "id, group, spec"),
+    (lambda d: d["result"].update(views=36), r"run.json.result: 'views' is not a key of "
+     "SceneRecord"),
+    (lambda d: d.update(attempts="1"), "run.json.attempts: expected int, got str '1'"),
+])
+def test_a_run_json_of_another_version_or_off_the_record_is_refused(tmp_path, change, message):
+    data = record.run_file(_run())
+    change(data)
+    path = tmp_path / "run.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(record.SchemaError) as info:
+        record.read_run(path)
+    assert str(info.value).startswith(str(path)) and message in str(info.value)
+
+
+def test_a_run_json_that_is_not_json_is_refused(tmp_path):
+    path = tmp_path / "run.json"
+    path.write_text('{"schema_version": 1, "id": ')  # a file cut short
+    with pytest.raises(record.SchemaError, match=r"run\.json: not JSON"):
+        record.read_run(path)
+
+
+# ---------------------------------------------------------------------------- the readers
+
+
+@pytest.mark.parametrize("name", ["results_pliers_seed0", "results_sweep_light"])
+def test_the_report_of_a_committed_results_json_is_unchanged(name):
+    """results.md and the terminal table, read from the record, are byte for byte those the
+    readers wrote when they read the JSON as dicts (``data/<name>.md`` and ``.txt`` were written
+    by that code, at d13ff61, from ``data/<name>.json``). ``results_sweep_light`` is a sweep of
+    light runs (tests/test_sweep.py): passed, died, raised and not run, a perturbation."""
+    rec = record.read_results(SAMPLE.parent / f"{name}.json")
+    if rec.layout == "scenes":
+        markdown, table = report.markdown, report.terminal_table
+    else:
+        markdown, table = sweep_report.sweep_markdown, sweep_report.sweep_table
+    assert markdown(rec) == (SAMPLE.parent / f"{name}.md").read_text()
+    assert table(rec) + "\n" == (SAMPLE.parent / f"{name}.txt").read_text()

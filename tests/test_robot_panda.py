@@ -82,12 +82,14 @@ def test_arm_is_a_scene_choice(stage):
         path.unlink()
 
 
-def test_pliers_panda_is_pliers_with_the_other_stage():
+@pytest.mark.parametrize("name", ["pliers", "truck"])
+def test_a_panda_scene_is_its_puma_scene_with_the_other_stage(name):
     def body(path):
         root = ET.parse(path).getroot()
         return [ET.tostring(el) for el in root if el.tag != "include"]
-    assert body(ROOT / "scenes" / "pliers_panda.xml") == body(ROOT / "scenes" / "pliers.xml")
-    a, b = load_scene("pliers"), load_scene("pliers_panda")
+    assert body(ROOT / "scenes" / f"{name}_panda.xml") == body(ROOT / "scenes" / f"{name}.xml")
+    a, b = load_scene(name), load_scene(f"{name}_panda")
+    assert arm_spec(b.model) is PANDA and arm_spec(a.model) is PUMA560
     for ja, jb in zip(a.joints, b.joints, strict=True):
         assert ja.name == jb.name and (ja.value_a, ja.value_b) == (jb.value_a, jb.value_b)
         np.testing.assert_array_equal(ja.axis, jb.axis)

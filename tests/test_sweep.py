@@ -19,7 +19,7 @@ import pytest
 
 import sim  # noqa: F401
 from sim import cache
-from sim.evaluate import cli, gates, pictures, sweep
+from sim.evaluate import cli, gates, pictures, record, sweep
 from sim.evaluate.config import EvalConfig
 from sim.perturb import Perturbation
 
@@ -172,7 +172,7 @@ def test_worker_that_always_dies_is_reported_failed_not_missing(tmp_path, capsys
     assert died["status"] == "died" and died["attempts"] == 2
     assert "exit code 4" in died["result"]["error"]
     assert died["result"]["failed_gates"][0]["gate"] == "error"
-    assert cli.finish(res) == 1
+    assert cli.finish(record.Results.from_json(res)) == 1
     last = capsys.readouterr().out.strip().splitlines()[-1]
     assert last.startswith("FAIL: 1 of 2 run(s)") and "pliers seed 1 (worker died)" in last
 
@@ -207,6 +207,39 @@ def test_resume_skips_finished_runs_and_reruns_changed_or_dead_ones(tmp_path):
     assert [r["status"] for r in third["runs"]] == ["failed", "passed", "failed"]
     assert "not the harness" in third["runs"][0]["result"]["error"]
     assert third["runs"][1] == first["runs"][1]
+
+
+@pytest.mark.parametrize("change, why", [
+    (lambda d: d.update(schema_version=0), "is of schema_version 0"),
+    (lambda d: d.pop("schema_version"), "has no schema_version"),
+    (lambda d: d.update(note="by hand"), "'note' is not a key of RunRecord"),
+    (lambda d: d["result"]["joints"][0].update(axis_angle_deg="0.1"),
+     "joints[0].axis_angle_deg: expected float, got str '0.1'"),
+])
+def test_resume_runs_again_a_record_it_cannot_read_and_says_why(tmp_path, caplog, change, why):
+    """A run.json of another schema_version, of none (written before run.json had one), or with
+    a key or value the record does not hold is neither trusted nor fatal: that run runs again,
+    a warning names the run, the file and why; the others are kept."""
+    specs = _specs(seeds=(0, 1), scenes=("pliers",))
+    first = sweep.run_sweep(specs, tmp_path, sweep.SweepConfig(progress=False),
+                            run_fn=light_run)
+    path = tmp_path / "runs" / "pliers-seed0" / "run.json"
+    data = json.loads(path.read_text())
+    assert data["schema_version"] == record.SCHEMA_VERSION
+    change(data)
+    path.write_text(json.dumps(data))
+    with caplog.at_level("WARNING", logger="sim.evaluate.sweep"):
+        again = sweep.run_sweep(specs, tmp_path,
+                                sweep.SweepConfig(progress=False, resume=True),
+                                run_fn=raising_run)
+    assert [r["status"] for r in again["runs"]] == ["failed", "passed"]  # run 0 ran again
+    assert "not the harness" in again["runs"][0]["result"]["error"]
+    assert again["runs"][1] == first["runs"][1]
+    (warning,) = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert warning.startswith("resume: running pliers-seed0 again: its record is not one this "
+                              f"code reads: {path}")
+    assert why in warning
+    assert record.read_run(path).status == "failed"  # written again, by this code's record
 
 
 def _interrupting_run(name, ev, out_dir):
@@ -417,12 +450,13 @@ def test_strength_chart_draws_runs_against_the_perturbation(tmp_path):
                             perturbation="noise", strength=n, label=f"noise_{n}")
               for n in (4, 12) for s in (0, 1)]
     axis = {"title": "image noise", "unit": "grey levels", "neutral": 0}
-    results = sweep.run_sweep(specs, tmp_path, sweep.SweepConfig(progress=False),
-                              run_fn=light_run, perturbations={"noise": axis})
+    sweep.run_sweep(specs, tmp_path, sweep.SweepConfig(progress=False), run_fn=light_run,
+                    perturbations={"noise": axis})
+    results = record.read_results(tmp_path / "results.json")
     pts = pictures._axis_points(results, "noise", axis)
     assert [x for x, _ in pts] == [0, 0, 4, 4, 12, 12]
     # the strength reaches the run: 0.01 deg of axis error per grey level of noise
-    assert [r["result"]["joints"][0]["axis_angle_deg"] for _, r in pts] == pytest.approx(
+    assert [r.result.joints[0].axis_angle_deg for _, r in pts] == pytest.approx(
         [0.1, 0.2, 0.14, 0.24, 0.22, 0.32])
     assert (tmp_path / "sweep_noise.png").stat().st_size > 1000
     assert "![noise](sweep_noise.png)" in (tmp_path / "results.md").read_text()

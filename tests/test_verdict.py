@@ -7,6 +7,8 @@ with models built from the true surfaces and joints, so that the only error is t
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -14,7 +16,7 @@ import sim  # noqa: F401
 from artrecon.geometry import rotation_about
 from artrecon.model import ArticulatedModel, Joint, Link
 from sim import evaluate
-from sim.evaluate import cli, gates
+from sim.evaluate import cli, gates, record
 from sim.scene import load_scene
 
 
@@ -110,7 +112,9 @@ def test_main_job_exits_non_zero_and_names_the_gate(monkeypatch, tmp_path, capsy
         res = _pliers_result(tilt_deg=5.0)
         v = gates.verdict(res, manipulate=ev.manipulate)
         res.update(passed=v["passed"], failed_gates=v["failed"])
-        return {"scenes": {"pliers": res}, "meta": {}}
+        # as sweep.run returns it: the record as written (JSON: lists, not tuples)
+        return json.loads(json.dumps({"schema_version": record.SCHEMA_VERSION,
+                                      "scenes": {"pliers": res}, "meta": {}}))
 
     monkeypatch.setattr(cli, "run", fake_run)
     assert cli.main(["pliers", "--out", str(tmp_path), "--quiet"]) == 1
@@ -127,7 +131,9 @@ def test_main_job_exits_zero_when_every_scene_passes(monkeypatch, tmp_path, caps
     def fake_run(names, ev, out_dir, argv=None):
         res = _pliers_result()
         res.update(passed=True, failed_gates=[])
-        return {"scenes": {"pliers": res}, "meta": {}}
+        # as sweep.run returns it: the record as written (JSON: lists, not tuples)
+        return json.loads(json.dumps({"schema_version": record.SCHEMA_VERSION,
+                                      "scenes": {"pliers": res}, "meta": {}}))
 
     monkeypatch.setattr(cli, "run", fake_run)
     assert cli.main(["pliers", "--out", str(tmp_path), "--quiet"]) == 0

@@ -38,11 +38,14 @@ class FreshView:
 
 def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.6,
                        seed: int = 0, capture_config: CaptureConfig = CaptureConfig(),
-                       plan_config: views.ViewPlanConfig = views.ViewPlanConfig()
-                       ) -> FreshView:
+                       plan_config: views.ViewPlanConfig = views.ViewPlanConfig(),
+                       target: tuple | None = None) -> FreshView:
     """One more image after the capture, from an arm pose that neither image set holds.
 
-    The arm starts at ``q_start`` (where the capture left it), plans a view at
+    The arm starts at ``q_start`` (where the capture left it), plans a view of ``target``
+    (``(centre, radius)`` of the object's sphere as the robot knows it: the capture's survey,
+    capture.json's ``object_sphere``; None: the arm surveys the table again,
+    :func:`sim.views.survey_object`) at
     ``capture_config.fresh_elevation_deg`` half a capture step off its current azimuth (the
     other ``fresh_azimuth_offsets_deg`` when that one is out of reach), at the distance where the
     object fills ``fill`` of the image, moves there in physics along a checked line and
@@ -65,7 +68,10 @@ def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.
     q_start = np.asarray(q_start, dtype=float)
     data.qpos[robot.qpos_indices(model, kin)] = q_start
     mujoco.mj_forward(model, data)
-    centre, radius = views.object_bounding_sphere(model, data)
+    if target is None:
+        survey = views.survey_object(model, data, kin, K, width, height, plan_config)
+        target = survey.centre, survey.radius
+    centre, radius = np.asarray(target[0], dtype=float), float(target[1])
     distance = views.ring_distance(radius, K, width, height, fill,
                                    plan_config.min_ring_distance)
     eye = kin.camera_pose(q_start)[:3, 3] - centre

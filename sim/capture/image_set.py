@@ -149,6 +149,8 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
     sc, model, data, kin = rig.scene, rig.model, rig.data, rig.kin
     K, width, height = rig.K, rig.width, rig.height
     joints_config = sc.configuration(config)
+    # the object's true bounding sphere: ground_truth/poses.json only, to score the survey's
+    true_sphere = views.object_bounding_sphere(model, data)
 
     expected = sum(n for _, n in views.ring_sizes(plan_cfg))
     bar = tqdm(total=2 * expected, desc=f"capture {sc.name}/{config}", unit="view",
@@ -245,7 +247,8 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
             "cameras.json": _cameras_json(sc, config, rig, cam_images),
             "capture.json": _capture_json(sc, config, plan_cfg, plan, len(to_take), free,
                                           unreachable, kin, arm),
-            "ground_truth/poses.json": _poses_json(sc, config, joints_config, plan, gt_images),
+            "ground_truth/poses.json": _poses_json(sc, config, joints_config, true_sphere,
+                                                   gt_images),
         }
         for w in writes:
             png_cpu += w.result()  # raises the first failed write
@@ -328,6 +331,9 @@ def _capture_json(sc: Scene, config: str, cfg: views.ViewPlanConfig, plan: views
     """capture.json: the ring layout asked for, the rings chosen, what was captured and not."""
     return {
         "scene": sc.name, "config": config, "seed": cfg.seed, "views_per_ring": cfg.views_per_ring,
+        # where the rings look: the object's sphere as the survey found it (what the robot knows)
+        "object_sphere": {"centre": [float(x) for x in plan.centre], "radius": float(plan.radius),
+                          "survey": plan.survey},
         "elevations_deg": list(cfg.elevations_deg),
         "top_elevations_deg": list(cfg.top_elevations_deg),
         "fill": cfg.fill, "fill_range": list(cfg.fill_range),
@@ -344,7 +350,7 @@ def _capture_json(sc: Scene, config: str, cfg: views.ViewPlanConfig, plan: views
     }
 
 
-def _poses_json(sc: Scene, config: str, joints_config: dict, plan: views.ViewPlan,
+def _poses_json(sc: Scene, config: str, joints_config: dict, true_sphere: tuple,
                 images: list[dict]) -> dict:
     """ground_truth/poses.json: the object's configuration, links, label legend, true poses."""
     link_names = [li.name for li in sc.links]
@@ -352,8 +358,8 @@ def _poses_json(sc: Scene, config: str, joints_config: dict, plan: views.ViewPla
         "scene": sc.name, "config": config,
         "object_joints": joints_config,
         "object_links": link_names,
-        "object_bounding_sphere": {"centre": [float(x) for x in plan.centre],
-                                   "radius": plan.radius},
+        "object_bounding_sphere": {"centre": [float(x) for x in true_sphere[0]],
+                                   "radius": float(true_sphere[1])},
         "label_legend": {**{str(i): n for i, n in enumerate(link_names)},
                          str(LABEL_PNG_ARM): "arm", str(LABEL_PNG_STAGE): "stage",
                          str(LABEL_PNG_BACKGROUND): "background"},

@@ -1,6 +1,7 @@
 """The view plan of a capture (rings and IK, :func:`sim.views.plan_capture`), cached on disk:
-it depends on the compiled scene, the start state, the camera, the ring layout, the seed and the
-planning code, and on nothing of rendering, motion or the files."""
+it depends on the compiled scene, the start state, the camera, the ring layout, the seed, the
+survey's settings and the planning code (the survey's renderer among it: the survey photographs
+the table to find the object), and on nothing of the capture's motion or files."""
 
 from __future__ import annotations
 
@@ -49,7 +50,8 @@ def plan_inputs(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinema
         urdf = cache.hash_files([robot.ROOT / kin.spec.urdf], root=robot.ROOT)
     return {"model": cache.hash_bytes(buf.tobytes()), "state": state, "arm": kin.spec.name,
             "urdf": urdf, "K": np.asarray(K, dtype=float).tolist(), "size": [width, height],
-            "plan": dataclasses.asdict(config), "code": plan_sources(),
+            "plan": dataclasses.asdict(config), "survey": dataclasses.asdict(views.SurveyConfig()),
+            "code": plan_sources(),
             "versions": {"numpy": np.__version__, "mujoco": mujoco.__version__,
                          "pinocchio": pinocchio.__version__}}
 

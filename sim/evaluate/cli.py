@@ -14,7 +14,7 @@ from artrecon.errors import InputError
 from artrecon.settings import parse_settings
 from sim import perturb
 from sim.capture_config import SET_EXAMPLE, SET_HELP, capture_settings
-from sim.evaluate import report, sweep, sweep_report
+from sim.evaluate import record, report, sweep, sweep_report
 from sim.evaluate.checks import check_run
 from sim.evaluate.config import POSE_SOURCES, EvalConfig
 from sim.evaluate.sweep import run
@@ -117,7 +117,8 @@ def parser() -> argparse.ArgumentParser:
                         "ray://HOST:10001); without it a local cluster is started for the sweep")
     g.add_argument("--resume", action="store_true",
                    help="skip the runs that OUT already holds finished (same settings, same "
-                        "code); the others run")
+                        "code); the others run, and so does a run whose run.json this code "
+                        "does not read (another schema version: a warning says why)")
     p.add_argument("--poses", choices=POSE_SOURCES, default=default.poses,
                    help="camera poses: 'fk' the arm's forward kinematics, held fixed and checked "
                         "against the images; 'images' SfM from the images alone (the photo "
@@ -213,39 +214,39 @@ def main(argv: list[str] | None = None) -> int:
               "run the same command with --resume to go on (finished stages come from the "
               "cache)", file=sys.stderr)
         return 130
+    rec = record.Results.from_json(results)  # what was written, as the record
     print()
-    print(sweep_report.sweep_table(results) if "runs" in results
-          else report.terminal_table(results))
+    print(sweep_report.sweep_table(rec) if rec.layout == "sweep" else report.terminal_table(rec))
     print(f"\nreport: {args.out / 'results.json'}, {args.out / 'results.md'}")
-    return finish(results, report_only=args.report_only)
+    return finish(rec, report_only=args.report_only)
 
 
-def finish(results: dict, report_only: bool = False) -> int:
+def finish(results: record.Results, report_only: bool = False) -> int:
     """Print the verdict's last line and return the exit status: 1 if any scene (any run of a
     sweep) failed a gate or raised an error (0 with ``report_only``, for exploratory runs)."""
-    if "runs" in results:
+    if results.layout == "sweep":
         return finish_sweep(results, report_only)
-    scenes = results["scenes"]
-    failed = {n: r for n, r in scenes.items() if r.get("error") or not r.get("passed", False)}
+    scenes = results.scenes
+    failed = {n: r for n, r in scenes.items() if r.error or not r.passed}
     if not failed:
         print(f"PASS: all {len(scenes)} scene(s) met every gate")
         return 0
     for n, r in failed.items():
-        why = (r["error"] if r.get("error") else
-               "; ".join(f"{g['subject']}: {g['gate']}" for g in r.get("failed_gates") or []))
+        why = (r.error if r.error else
+               "; ".join(f"{g.subject}: {g.gate}" for g in r.failed_gates or []))
         print(f"FAIL {n}: {why}", file=sys.stderr)
-    names = ", ".join(f"{n} ({'error' if r.get('error') else ', '.join(sorted({g['gate'] for g in r.get('failed_gates') or []}))})"  # noqa: E501
+    names = ", ".join(f"{n} ({'error' if r.error else ', '.join(sorted({g.gate for g in r.failed_gates or []}))})"  # noqa: E501
                       for n, r in failed.items())
     print(f"FAIL: {len(failed)} of {len(scenes)} scene(s) missed a gate or failed: {names}"
           + (" (--report-only: exit status 0)" if report_only else ""))
     return 0 if report_only else 1
 
 
-def finish_sweep(results: dict, report_only: bool = False) -> int:
+def finish_sweep(results: record.Results, report_only: bool = False) -> int:
     """:func:`finish` of a sweep: a line per run that did not pass (stderr), then the last line
     naming every such run (scene, seed) and its gates."""
-    runs = results["runs"]
-    failed = [r for r in runs if r["status"] != "passed"]
+    runs = results.runs
+    failed = [r for r in runs if r.status != "passed"]
     if not failed:
         print(f"PASS: all {len(runs)} run(s) met every gate")
         return 0
@@ -253,14 +254,14 @@ def finish_sweep(results: dict, report_only: bool = False) -> int:
         print(f"FAIL {sweep_report.run_name(r)}: {sweep_report.run_reason(r)}", file=sys.stderr)
 
     def gates_of(r):
-        res = r.get("result") or {}
-        if r["status"] == "not run":
+        res = r.result
+        if r.status == "not run":
             return "not run"
-        if r["status"] == "died":
+        if r.status == "died":
             return "worker died"
-        if res.get("error"):
+        if res is not None and res.error:
             return "error"
-        return ", ".join(sorted({g["gate"] for g in res.get("failed_gates") or []}))
+        return ", ".join(sorted({g.gate for g in (res and res.failed_gates) or []}))
 
     names = ", ".join(f"{sweep_report.run_name(r)} ({gates_of(r)})" for r in failed)
     print(f"FAIL: {len(failed)} of {len(runs)} run(s) missed a gate or failed: {names}"

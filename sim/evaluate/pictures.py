@@ -8,7 +8,9 @@
 - a sweep's ``sweep_errors.png`` (the gated errors of every run per scene and seed) and
   ``sweep_<perturbation>.png`` (errors against each perturbation's strength, the gate drawn).
 
-Every file is written whole or not at all (:mod:`artrecon.files`).
+Every file is written whole or not at all (:mod:`artrecon.files`). The charts read the typed
+record (:mod:`sim.evaluate.record`): a scene's :class:`~sim.evaluate.record.SceneRecord`, a
+sweep's :class:`~sim.evaluate.record.Results`.
 """
 
 from __future__ import annotations
@@ -22,7 +24,9 @@ import numpy as np
 from PIL import Image
 
 from artrecon.files import write_bytes_atomic
+from sim.evaluate import record
 from sim.evaluate.gates import GATES
+from sim.evaluate.report import jsonable_scene
 from sim.scene import load_scene
 
 log = logging.getLogger(__name__)
@@ -103,26 +107,26 @@ def draw_reconstruction(image: np.ndarray, K: np.ndarray, T_world_camera: np.nda
     return img
 
 
-def error_bars(result: dict, gates: dict) -> list[tuple[str, float | None, float, str]]:
+def error_bars(result: record.SceneRecord, gates: dict
+               ) -> list[tuple[str, float | None, float, str]]:
     """(label, value, gate, unit) of a scene's gated figures; for accuracy-like figures
     (higher is better) the value is the shortfall ``1 - value`` against ``1 - gate``."""
     bars = []
-    for j in result.get("joints") or []:
-        n = j["name"]
-        bars.append((f"{n} axis angle", j.get("axis_angle_deg"), gates["axis_angle_deg"], "deg"))
-        if j["type_true"] == "revolute":
-            bars.append((f"{n} axis position", j.get("axis_position_mm"),
-                         gates["axis_position_mm"], "mm"))
-        unit = j.get("state_error_unit", "deg")
-        bars.append((f"{n} state", j.get("state_error"), gates[f"state_error_{unit}"], unit))
-    seg = result.get("segmentation_accuracy")
+    for j in result.joints or []:
+        n = j.name
+        bars.append((f"{n} axis angle", j.axis_angle_deg, gates["axis_angle_deg"], "deg"))
+        if j.type_true == "revolute":
+            bars.append((f"{n} axis position", j.axis_position_mm, gates["axis_position_mm"],
+                         "mm"))
+        unit = j.state_error_unit or "deg"
+        bars.append((f"{n} state", j.state_error, gates[f"state_error_{unit}"], unit))
+    seg = result.segmentation_accuracy
     bars.append(("segmentation miss", None if seg is None else 1.0 - seg,
                  1.0 - gates["segmentation_accuracy"], ""))
-    bars.append(("points off the object", (result.get("segmentation") or {}).get(
-        "off_surface_share"), gates["off_object_share"], ""))
-    man = result.get("manipulation") or {}
-    bars.append(("manipulation rel. err", man.get("relative_error"),
-                 gates["manipulation_relative_error"], ""))
+    bars.append(("points off the object", result.segmentation and
+                 result.segmentation.off_surface_share, gates["off_object_share"], ""))
+    bars.append(("manipulation rel. err", result.manipulation and
+                 result.manipulation.relative_error, gates["manipulation_relative_error"], ""))
     return bars
 
 
@@ -164,14 +168,17 @@ def _write_png(path: Path, rgb: np.ndarray) -> None:
 
 
 def write_scene_pictures(result: dict, out_dir: Path) -> list[Path]:
-    """The two pictures of a scene (whatever its result allows: none if it failed early)."""
+    """The two pictures of a scene (whatever its result allows: none if it failed early), from
+    the runner's result (:func:`sim.evaluate.runner.evaluate_scene`: its figures, read as the
+    record results.json will hold, and its in-memory model and points)."""
     out_dir = Path(out_dir)
     name = result["scene"]
     written = []
     if result.get("joints") or result.get("segmentation_accuracy") is not None:
         path = out_dir / f"{name}_errors.png"
+        scene = record.SceneRecord.from_json(jsonable_scene(result), name)
         _write_png(path, draw_error_chart(f"{name}: errors as a fraction of their gates",
-                                          error_bars(result, GATES)))
+                                          error_bars(scene, GATES)))
         written.append(path)
     arrays = result.get("_arrays")
     if not arrays or "_set_a" not in result:
@@ -223,17 +230,18 @@ FAMILIES = (("axis angle", "axis angle"), ("axis position", "axis position"),
             ("manipulation rel. err", "manipulation relative error"))
 
 
-def run_bars(result: dict | None, manipulate: bool = True
+def run_bars(result: record.SceneRecord | None, manipulate: bool = True
              ) -> list[tuple[str, float | None, float, str]]:
     """:func:`error_bars` of a run's result, lower is better for each (none for a run that has
     no result; no manipulation bar for a run that did not manipulate)."""
-    if not result:
+    if result is None:
         return []
     bars = error_bars(result, GATES)
     return [b for b in bars if manipulate or not b[0].startswith("manipulation")]
 
 
-def family_values(result: dict | None, manipulate: bool = True) -> dict[str, float | None]:
+def family_values(result: record.SceneRecord | None, manipulate: bool = True
+                  ) -> dict[str, float | None]:
     """``{family: worst value / gate}`` of a run (:data:`FAMILIES`; None: not measured)."""
     out: dict[str, float | None] = {}
     for label, value, gate, _ in run_bars(result, manipulate):
@@ -270,15 +278,14 @@ def _put(img, text, org, scale=0.45, colour=(0, 0, 0)):
 CHART_TOP = 2.0
 
 
-def draw_sweep_errors(results: dict) -> np.ndarray:
+def draw_sweep_errors(results: record.Results) -> np.ndarray:
     """Every run's gated errors per scene and seed: a row per figure family (:data:`FAMILIES`),
     a column per scene / setting, a dot per seed at value / gate (the dashed line: the gate;
     green passes, red fails; a red cross at the top: no figure, the run failed or died).
     Returns an RGB uint8 image."""
-    runs = results["runs"]
-    groups = list(dict.fromkeys(r["group"] for r in runs))
-    vals = {r["id"]: family_values(r.get("result"), r["spec"]["config"].get("manipulate", True))
-            for r in runs}
+    runs = results.runs
+    groups = list(dict.fromkeys(r.group for r in runs))
+    vals = {r.id: family_values(r.result, r.spec.config.get("manipulate", True)) for r in runs}
     fams = [(k, t) for k, t in FAMILIES if any(k in v for v in vals.values())]
     col, row, left, top = max(90, min(180, 900 // max(1, len(groups)))), 90, 190, 60
     w, h = max(760, left + col * len(groups) + 20), top + row * max(1, len(fams)) + 70
@@ -301,11 +308,11 @@ def draw_sweep_errors(results: dict) -> np.ndarray:
         _put(img, "1", (left - 14, Y(1.0) + 4), 0.35, (0, 90, 200))
         _put(img, "0", (left - 14, y1 + 4), 0.35)
         for gi, g in enumerate(groups):
-            recs = [r for r in runs if r["group"] == g]
+            recs = [r for r in runs if r.group == g]
             for k, r in enumerate(recs):
                 x = left + gi * col + int((k + 1) * col / (len(recs) + 1))
-                v = vals[r["id"]].get(key)
-                if key not in vals[r["id"]] and r.get("result") and not r["result"].get("error"):
+                v = vals[r.id].get(key)
+                if key not in vals[r.id] and r.result is not None and not r.result.error:
                     continue  # the run has no such figure (e.g. no revolute joint)
                 if v is None:
                     _cross(img, (x, y0 + 8), (30, 30, 220))
@@ -314,26 +321,27 @@ def draw_sweep_errors(results: dict) -> np.ndarray:
                 cv2.circle(img, (x, Y(v)), 5, colour, -1, cv2.LINE_AA)
                 if v > CHART_TOP:
                     _put(img, f"{v:.2g}x", (x + 8, Y(v) + 4), 0.35, (220, 40, 40))
-                _put(img, str(r["spec"]["config"]["seed"]), (x - 3, y1 + 12), 0.3, (90, 90, 90))
+                _put(img, str(r.spec.config["seed"]), (x - 3, y1 + 12), 0.3, (90, 90, 90))
     _put(img, "small numbers under the dots: seeds; cross at the top: no figure (error, died)",
          (10, h - 12), 0.4, (90, 90, 90))
     return img
 
 
-def _axis_points(results: dict, name: str, axis: dict):
-    """(strength, record) of every run on perturbation ``name``'s axis, the baseline runs (no
+def _axis_points(results: record.Results, name: str, axis: dict
+                 ) -> list[tuple[float, record.RunRecord]]:
+    """(strength, run) of every run on perturbation ``name``'s axis, the baseline runs (no
     perturbation) at ``axis["neutral"]`` when given."""
     pts = []
-    for r in results["runs"]:
-        s = r["spec"]
-        if s["perturbation"] == name and s["strength"] is not None:
-            pts.append((float(s["strength"]), r))
-        elif not s["perturbation"] and axis.get("neutral") is not None:
+    for r in results.runs:
+        s = r.spec
+        if s.perturbation == name and s.strength is not None:
+            pts.append((float(s.strength), r))
+        elif not s.perturbation and axis.get("neutral") is not None:
             pts.append((float(axis["neutral"]), r))
     return sorted(pts, key=lambda p: p[0])
 
 
-def draw_strength_chart(results: dict, name: str, axis: dict) -> np.ndarray:
+def draw_strength_chart(results: record.Results, name: str, axis: dict) -> np.ndarray:
     """Errors against the strength of one perturbation: axis angle (deg) and joint state (as a
     fraction of its gate: joints in degrees and millimetres alike) of each run's worst joint, a
     dot per seed, the line through the medians, the gate dashed; a red cross at the top: no
@@ -346,8 +354,8 @@ def draw_strength_chart(results: dict, name: str, axis: dict) -> np.ndarray:
     xmin, xmax = xs[0], xs[-1]
     span = (xmax - xmin) or 1.0
     panels = [("axis angle error (deg)", GATES["axis_angle_deg"],
-               lambda r: max((j["axis_angle_deg"] for j in (r.get("joints") or [])
-                              if j.get("axis_angle_deg") is not None), default=None)),
+               lambda r: max((j.axis_angle_deg for j in (r.joints or [])
+                              if j.axis_angle_deg is not None), default=None)),
               ("joint state error / gate", 1.0,
                lambda r: family_values(r, False).get("state"))]
     for pi, (title, gate, get) in enumerate(panels):
@@ -355,7 +363,7 @@ def draw_strength_chart(results: dict, name: str, axis: dict) -> np.ndarray:
         px0, py0, px1, py1 = x0 + 55, 50, x0 + w // 2 - 15, h - 60
         cv2.rectangle(img, (px0, py0), (px1, py1), (150, 150, 150), 1)
         _put(img, title, (x0 + 10, 42), 0.45)
-        values = [(x, None if not r.get("result") else get(r["result"])) for x, r in pts]
+        values = [(x, None if r.result is None else get(r.result)) for x, r in pts]
         top = max([2 * gate] + [min(v, 10 * gate) for _, v in values if v is not None]) * 1.1
 
         def X(x, px0=px0, px1=px1):

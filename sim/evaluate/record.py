@@ -31,6 +31,11 @@ has no ``segmentation``; a worker that died leaves only the error): every record
 keys it was read with (``present``) and writes those again, so a file read and written again is
 the same file. A record made in code (``present`` None) writes every field.
 
+A sweep's ``OUT/runs/<run id>/run.json`` (what ``--resume`` reads) is one :class:`RunRecord`
+with the ``schema_version`` beside its keys: ``{"schema_version", "id", "group", "spec", ...}``
+(:func:`run_file` writes it, :func:`read_run` reads it and refuses it as :meth:`Results.from_json`
+refuses a results.json).
+
 Any change of a key (added, removed, renamed, another meaning) raises :data:`SCHEMA_VERSION`.
 """
 
@@ -52,8 +57,8 @@ SCHEMA_VERSION = 1
 
 
 class SchemaError(ValueError):
-    """A results.json this code cannot read: another schema_version, or a key or value the
-    record does not hold (the message names where)."""
+    """A results.json or run.json this code cannot read: not JSON, another schema_version, or a
+    key or value the record does not hold (the message names where)."""
 
 
 # ---------------------------------------------------------------------------- the machinery
@@ -214,6 +219,10 @@ class CaptureSummary(_Record):
     n_captured: int | None = None
     max_fk_position_error_mm: float | None = None
     max_fk_rotation_error_deg: float | None = None
+    survey_centre_error_mm: float | None = None
+    """the survey's sphere (what the capture looked at) against the true one: centre, mm"""
+    survey_radius_ratio: float | None = None
+    """and radius, surveyed over true"""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -571,18 +580,30 @@ class Results(_Record):
         """The record of a parsed results.json; SchemaError for a file of another
         schema_version (or none: written before the schema had one) and for any key or value
         the record does not hold."""
-        if not isinstance(data, dict):
-            raise SchemaError(f"{where}: expected an object, got {_kind(data)}")
-        version = data.get("schema_version")
-        if version != SCHEMA_VERSION:
-            written = ("has no schema_version: it was written before sim.evaluate versioned "
-                       "its results" if version is None else
-                       f"is of schema_version {version!r}")
-            raise SchemaError(f"{where} {written}; this code reads schema_version "
-                              f"{SCHEMA_VERSION} (sim/evaluate/record.py). Run the evaluation "
-                              "again with this code, or read the file with the code that wrote "
-                              "it.")
+        _check_version(data, where)
         return super().from_json(data, where)
+
+
+def _check_version(data, where: str) -> None:
+    """SchemaError unless ``data`` is an object of this code's :data:`SCHEMA_VERSION`."""
+    if not isinstance(data, dict):
+        raise SchemaError(f"{where}: expected an object, got {_kind(data)}")
+    version = data.get("schema_version")
+    if version != SCHEMA_VERSION:
+        written = ("has no schema_version: it was written before sim.evaluate versioned "
+                   "its results" if version is None else
+                   f"is of schema_version {version!r}")
+        raise SchemaError(f"{where} {written}; this code reads schema_version "
+                          f"{SCHEMA_VERSION} (sim/evaluate/record.py). Run the evaluation "
+                          "again with this code, or read the file with the code that wrote "
+                          "it.")
+
+
+def _read(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except ValueError as err:  # JSONDecodeError, UnicodeDecodeError
+        raise SchemaError(f"{path}: not JSON ({err})") from err
 
 
 def build(results: dict) -> Results:
@@ -594,8 +615,27 @@ def build(results: dict) -> Results:
 def read_results(path: str | Path) -> Results:
     """The record of a results.json file (SchemaError: another version, or not this schema)."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except ValueError as err:
-        raise SchemaError(f"{path}: not JSON ({err})") from err
-    return Results.from_json(data, str(path))
+    return Results.from_json(_read(path), str(path))
+
+
+def run_file(run: RunRecord) -> dict:
+    """The JSON of a sweep's ``run.json``: the run's keys after the ``schema_version``."""
+    return {"schema_version": SCHEMA_VERSION, **run.to_json()}
+
+
+def read_run(path: str | Path) -> RunRecord:
+    """The record of a sweep's ``run.json`` (:func:`run_file`).
+
+    Raises
+    ------
+    OSError
+        The file cannot be read.
+    SchemaError
+        Not JSON, another schema_version (or none: written before run.json had one), or a key
+        or value :class:`RunRecord` does not hold; the message names the file and where in it.
+    """
+    path = Path(path)
+    data = _read(path)
+    _check_version(data, str(path))
+    return RunRecord.from_json({k: v for k, v in data.items() if k != "schema_version"},
+                               str(path))

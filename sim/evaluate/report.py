@@ -3,6 +3,10 @@ and the terminal table.
 
 The pictures are :mod:`sim.evaluate.pictures`, the merged report of a sweep
 :mod:`sim.evaluate.sweep_report`. Every file is written whole or not at all (:mod:`artrecon.files`).
+The writer takes the runner's plain results and builds the record; everything that reads
+results (results.md, the terminal table, the verdict lines) reads the typed record
+(:class:`~sim.evaluate.record.Results`, :class:`~sim.evaluate.record.SceneRecord`), never the
+JSON: a results.json on disk is read with :func:`sim.evaluate.record.read_results`.
 """
 
 from __future__ import annotations
@@ -57,9 +61,10 @@ def write_results(results: dict, out_dir: Path) -> dict:
     ``results`` (:mod:`sim.evaluate.record`: SchemaError, nothing written, for a key it does not
     hold). Returns the JSON written."""
     out_dir = Path(out_dir)
-    data = record.build(_clean(results)).to_json()
+    rec = record.build(_clean(results))
+    data = rec.to_json()
     write_json_atomic(out_dir / "results.json", data)
-    write_bytes_atomic(out_dir / "results.md", markdown(data).encode())
+    write_bytes_atomic(out_dir / "results.md", markdown(rec).encode())
     return data
 
 
@@ -73,135 +78,146 @@ def _f(v, digits: int = 2, unit: str = "") -> str:
     return str(v)
 
 
-def tree_verdict(r: dict) -> str:
+def _or(value, default):
+    """``value``, or ``default`` where the record holds none."""
+    return default if value is None else value
+
+
+def _held(rec) -> bool:
+    """Whether a nested record holds anything: not None and not read from an empty object."""
+    return rec is not None and rec.present != frozenset()
+
+
+def tree_verdict(r: record.SceneRecord) -> str:
     """A scene's kinematic-tree cell: ``yes``/``no`` (:func:`sim.evaluate.score_joints`'s
     ``tree_correct``), then how many estimated joints were invented and how many true joints
     were static; ``-`` when the scene was not scored."""
-    if r.get("tree_correct") is None:
+    if r.tree_correct is None:
         return "-"
-    parts = ["yes" if r["tree_correct"] else "NO"]
-    if r.get("invented_joints"):
-        parts.append(f"{len(r['invented_joints'])} invented")
-    if r.get("static_joints"):
-        parts.append(f"{len(r['static_joints'])} static")
+    parts = ["yes" if r.tree_correct else "NO"]
+    if r.invented_joints:
+        parts.append(f"{len(r.invented_joints)} invented")
+    if r.static_joints:
+        parts.append(f"{len(r.static_joints)} static")
     return ", ".join(parts)
 
 
-def _invented(j) -> str:
-    if not isinstance(j, dict):
-        return str(j)
-    return (f"{j.get('name')} ({j.get('type')}, axis "
-            f"{_f(j.get('angle_to_table_normal_deg'), 1)} deg from the table normal)")
+def _invented(j: record.InventedJoint) -> str:
+    return (f"{j.name} ({j.type}, axis "
+            f"{_f(j.angle_to_table_normal_deg, 1)} deg from the table normal)")
 
 
-def tree_lines(r: dict) -> list[str]:
+def tree_lines(r: record.SceneRecord) -> list[str]:
     """The kinematic-tree section of a scene: verdict, pairs, invented and static joints."""
-    if r.get("tree_correct") is None:
+    if r.tree_correct is None:
         return []
-    pairs = ", ".join(f"{t} <- {e}" for e, t in r.get("pairs") or []) or "none"
-    moving = r.get("n_true_moving_joints")
-    out = [f"- kinematic tree: {'correct' if r['tree_correct'] else '**wrong**'} "
-           f"({r.get('n_estimated_joints')} estimated joint(s) for {moving} moving; true <- "
+    pairs = ", ".join(f"{t} <- {e}" for e, t in r.pairs or []) or "none"
+    moving = r.n_true_moving_joints
+    out = [f"- kinematic tree: {'correct' if r.tree_correct else '**wrong**'} "
+           f"({r.n_estimated_joints} estimated joint(s) for {moving} moving; true <- "
            f"estimated: {pairs}"
-           + (f"; links: {', '.join(f'{k} = {v}' for k, v in r['link_correspondence'].items())}"
-              if r.get("link_correspondence") else "") + ")"]
-    not_by_links = [j["name"] for j in r.get("joints") or []
-                    if j.get("estimated_joint") is not None and not j.get("paired_by_links")]
+           + (f"; links: {', '.join(f'{k} = {v}' for k, v in r.link_correspondence.items())}"
+              if r.link_correspondence else "") + ")"]
+    not_by_links = [j.name for j in r.joints or []
+                    if j.estimated_joint is not None and not j.paired_by_links]
     if not_by_links:
         out.append("- paired by axis geometry, not by the links they join: "
                    + ", ".join(not_by_links))
-    out.append("- invented joints: " + ("; ".join(_invented(j) for j in r["invented_joints"])
-                                        if r.get("invented_joints") else "none"))
+    out.append("- invented joints: " + ("; ".join(_invented(j) for j in r.invented_joints)
+                                        if r.invented_joints else "none"))
     out.append("- static joints (did not move; reported as static, not to be found; their link "
-               "is scored with its parent): " + (", ".join(r["static_joints"])
-                                                 if r.get("static_joints") else "none"))
+               "is scored with its parent): " + (", ".join(r.static_joints)
+                                                 if r.static_joints else "none"))
     return out
 
 
-def status(r: dict) -> str:
+def status(r: record.SceneRecord) -> str:
     """A scene's status cell: ``PASS``, ``FAIL (n gates)`` or ``ERROR <stage>``."""
-    if r.get("error"):
-        return "ERROR " + r["error"][:60]
-    if r.get("passed") is None:
+    if r.error:
+        return "ERROR " + r.error[:60]
+    if r.passed is None:
         return "-"
-    failed = r.get("failed_gates") or []
-    return "PASS" if r["passed"] else f"FAIL ({len(failed)} gate{'s' if len(failed) > 1 else ''})"
+    failed = r.failed_gates or []
+    return "PASS" if r.passed else f"FAIL ({len(failed)} gate{'s' if len(failed) > 1 else ''})"
 
 
-def verdict_lines(r: dict) -> list[str]:
+def verdict_lines(r: record.SceneRecord) -> list[str]:
     """The verdict of a scene for results.md: PASS, or FAIL with each failed gate."""
-    if r.get("passed") is None:
+    if r.passed is None:
         return []
-    if r["passed"]:
+    if r.passed:
         return ["**PASS**: every gate met"]
     return ["**FAIL**: " + "; ".join(
-        f"{g['subject']}: {g['gate']} {_f(g['figure'], 3)} (limit {_f(g['limit'], 3)})"
-        for g in r.get("failed_gates") or [])]
+        f"{g.subject}: {g.gate} {_f(g.figure, 3)} (limit {_f(g.limit, 3)})"
+        for g in r.failed_gates or [])]
 
 
-def manipulation_lines(man: dict | None) -> list[str]:
+def manipulation_lines(man: record.ManipulationRecord | None) -> list[str]:
     """results.md lines of a scene's manipulations: one per model joint moved."""
-    if not man:
+    if not _held(man):
         return []
-    if not man.get("runs"):
-        return [f"- manipulation: {man.get('reason') or 'not run'}"]
+    if not man.runs:
+        return [f"- manipulation: {man.reason or 'not run'}"]
     out = []
-    for r in man["runs"]:
-        head = f"- manipulation of {r['model_joint']} (true joint {r.get('true_joint') or '-'})"
-        if r.get("error") or r.get("achieved") is None:
-            out.append(f"{head}: {r.get('error') or r.get('reason')}")
+    for r in man.runs:
+        head = f"- manipulation of {r.model_joint} (true joint {r.true_joint or '-'})"
+        if r.error or r.achieved is None:
+            out.append(f"{head}: {r.error or r.reason}")
             continue
         out.append(
-            f"{head}: {_f(r['achieved'], 2)} of {_f(r['requested'], 2)} {r['unit']} "
-            f"({_f(100 * r['relative_error'], 1)}% off); peak force {_f(r['peak_force_n'], 1)} N "
-            f"(limit {_f(r['force_limit_n'], 1)} N; the true joint needs "
-            f"{_f(r.get('needed_force_n'), 2)} N, at the gates' tolerance "
-            f"{_f(r.get('force_at_gate_tolerance_n'), 2)} N), grasp "
-            f"{'LOST' if r['grasp_lost'] else 'held'}"
-            f"; grasp point {r['grasp_visibility']}"
-            f"{' (hidden from the camera)' if r['grasp_hidden'] else ''} on {r['grasp_body']}")
+            f"{head}: {_f(r.achieved, 2)} of {_f(r.requested, 2)} {r.unit} "
+            f"({_f(100 * r.relative_error, 1)}% off); peak force {_f(r.peak_force_n, 1)} N "
+            f"(limit {_f(r.force_limit_n, 1)} N; the true joint needs "
+            f"{_f(r.needed_force_n, 2)} N, at the gates' tolerance "
+            f"{_f(r.force_at_gate_tolerance_n, 2)} N), grasp "
+            f"{'LOST' if r.grasp_lost else 'held'}"
+            f"; grasp point {r.grasp_visibility}"
+            f"{' (hidden from the camera)' if r.grasp_hidden else ''} on {r.grasp_body}")
     return out
 
 
-def registration_lines(reg: dict | None) -> list[str]:
+def registration_lines(reg: record.RegistrationRecord | None) -> list[str]:
     """results.md lines of a scene's registration routes and their errors against the truth."""
-    if not reg:
+    if not _held(reg):
         return []
     out = []
-    for name, e in (reg.get("truth_errors") or {}).items():
-        out.append(f"- registration {name}: {_f(e['rotation_deg'], 3)} deg, "
-                   f"{_f(e['translation_mm'], 2)} mm, scale {_f(e['scale_percent'], 3)}% off the "
+    for name, e in (reg.truth_errors or {}).items():
+        out.append(f"- registration {name}: {_f(e.rotation_deg, 3)} deg, "
+                   f"{_f(e.translation_mm, 2)} mm, scale {_f(e.scale_percent, 3)}% off the "
                    f"true registration")
     return out
 
 
-def summary_rows(results: dict) -> list[list[str]]:
+def _joint_cells(j: record.JointRecord | None) -> list[str]:
+    """A joint's cells of the summary table (``-`` for a scene without joints)."""
+    if j is None:
+        return ["-", "-/-", "-", "-", "-", "-", "-"]
+    return [j.name, f"{_or(j.type_true, '-')}/{j.type_estimated or '-'}",
+            _f(j.axis_angle_deg, 2), _f(j.axis_position_mm, 1),
+            (f"{_f(j.state_error, 2)} {_or(j.state_error_unit, '')}"
+             if j.state_error is not None else "-"),
+            _f(j.angle_to_table_normal_deg, 1), _f((j.confidence or {}).get("score"), 2)]
+
+
+def summary_rows(results: record.Results) -> list[list[str]]:
     """One row per (scene, true moving joint): the headline figures in report units."""
     rows = []
-    for name, r in results["scenes"].items():
-        man = r.get("manipulation") or {}
-        man_s = (f"{_f(man.get('achieved'), 1)}/{_f(man.get('requested'), 1)} "
-                 f"{man.get('unit', '')} {_f(man.get('peak_force_n'), 1)} N"
-                 if man.get("requested") is not None else
-                 ("failed" if man.get("runs") else (man.get("reason") and "n/a") or "-"))
-        model = r.get("model") or {}
-        hidden = model.get("hidden") or {}
-        base = [name, _f(r.get("segmentation_accuracy"), 3),
-                _f(model.get("accuracy_median_mm"), 1), _f(model.get("completeness"), 2),
-                _f(hidden.get("completeness"), 2),
-                _f((r.get("camera_pose_error") or {}).get("position_median_mm"), 1),
-                _f(r.get("scale_error_pct"), 2), tree_verdict(r), man_s, _f(r.get("wall_s"), 0),
+    for name, r in results.scenes.items():
+        man = r.manipulation or record.ManipulationRecord()
+        man_s = (f"{_f(man.achieved, 1)}/{_f(man.requested, 1)} "
+                 f"{_or(man.unit, '')} {_f(man.peak_force_n, 1)} N"
+                 if man.requested is not None else
+                 ("failed" if man.runs else (man.reason and "n/a") or "-"))
+        model = r.model or record.ModelScore()
+        hidden = model.hidden or record.SurfaceScore()
+        base = [name, _f(r.segmentation_accuracy, 3),
+                _f(model.accuracy_median_mm, 1), _f(model.completeness, 2),
+                _f(hidden.completeness, 2),
+                _f(r.camera_pose_error and r.camera_pose_error.position_median_mm, 1),
+                _f(r.scale_error_pct, 2), tree_verdict(r), man_s, _f(r.wall_s, 0),
                 status(r)]
-        joints = r.get("joints") or [{}]
-        for j in joints:
-            jrow = [j.get("name", "-"), f"{j.get('type_true', '-')}/"
-                    f"{j.get('type_estimated') or '-'}",
-                    _f(j.get("axis_angle_deg"), 2), _f(j.get("axis_position_mm"), 1),
-                    (f"{_f(j.get('state_error'), 2)} {j.get('state_error_unit', '')}"
-                     if j.get("state_error") is not None else "-"),
-                    _f(j.get("angle_to_table_normal_deg"), 1),
-                    _f((j.get("confidence") or {}).get("score"), 2)]
-            rows.append(base[:1] + jrow + base[1:])
+        for j in r.joints or [None]:
+            rows.append(base[:1] + _joint_cells(j) + base[1:])
     return rows
 
 
@@ -210,7 +226,7 @@ HEADER = ["scene", "joint", "type true/est", "axis deg", "pos mm", "state err",
           "scale %", "tree ok", "manip achieved/req, force", "wall s", "status"]
 
 
-def terminal_table(results: dict) -> str:
+def terminal_table(results: record.Results) -> str:
     """The summary as aligned plain text."""
     table = [HEADER, *summary_rows(results)]
     widths = [max(len(r[i]) for r in table) for i in range(len(HEADER))]
@@ -220,32 +236,32 @@ def terminal_table(results: dict) -> str:
     return "\n".join(lines)
 
 
-def markdown(results: dict) -> str:
+def markdown(results: record.Results) -> str:
     """``results.md``: the summary table, then per scene the details and pictures."""
-    meta = results.get("meta", {})
+    meta = results.meta
     out = ["# artrecon evaluation", "",
-           f"{meta.get('date', '')}, `{meta.get('command', '')}`, seed {meta.get('seed')}, "
-           f"{meta.get('views_per_ring')} views per ring, "
-           f"cameras: {POSE_LABELS.get(meta.get('poses'), meta.get('poses'))}.", "",
-           "Versions: " + ", ".join(f"{k} {v}" for k, v in meta.get("versions", {}).items()),
+           f"{_or(meta.date, '')}, `{_or(meta.command, '')}`, seed {meta.seed}, "
+           f"{meta.views_per_ring} views per ring, "
+           f"cameras: {POSE_LABELS.get(meta.poses, meta.poses)}.", "",
+           "Versions: " + ", ".join(f"{k} {v}" for k, v in (meta.versions or {}).items()),
            "", "| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
     out += ["| " + " | ".join(c.replace("|", "/") for c in row) + " |"
             for row in summary_rows(results)]
-    gates = meta.get("gates", {})
+    gates = meta.gates or {}
     if gates:
         out += ["", "Gates: " + ", ".join(f"{k} {v}" for k, v in gates.items())]
-    for name, r in results["scenes"].items():
+    for name, r in results.scenes.items():
         out += ["", f"## {name}", ""]
-        out += verdict_lines(r) + ([""] if r.get("passed") is not None else [])
-        if r.get("error"):
-            out += [f"**Error** in stage `{r.get('error_stage')}`: {r['error']}", ""]
-        reg = r.get("registration") or {}
-        if reg:
-            routes = reg.get("routes") or {}
+        out += verdict_lines(r) + ([""] if r.passed is not None else [])
+        if r.error:
+            out += [f"**Error** in stage `{r.error_stage}`: {r.error}", ""]
+        reg = r.registration
+        if _held(reg):
+            routes = reg.routes or {}
             cc, pnp = routes.get("camera_centres") or {}, routes.get("pnp") or {}
-            agree = (reg.get("agreement") or {}).get("comparison") or {}
-            out += [f"- registration ({reg.get('chosen_route')}): scale "
-                    f"{_f(reg.get('scale_m_per_unit'), 6)} m/unit; camera centres "
+            agree = (reg.agreement or {}).get("comparison") or {}
+            out += [f"- registration ({reg.chosen_route}): scale "
+                    f"{_f(reg.scale_m_per_unit, 6)} m/unit; camera centres "
                     f"{cc.get('inliers')}/{cc.get('cameras')} cameras, rms "
                     f"{_f(cc.get('rms_mm'), 2)} mm; PnP of the fresh view "
                     + ", ".join(f"{im['inliers']}/{im['matches']} inliers, "
@@ -254,40 +270,48 @@ def markdown(results: dict) -> str:
                     + f" (scale from {pnp.get('scale_from')}); routes "
                     f"{_f(agree.get('translation_mm'), 2)} mm, "
                     f"{_f(agree.get('rotation_deg'), 3)} deg apart"]
-        cam = r.get("camera_pose_error") or {}
-        if cam:
-            out += [f"- camera poses: position median {_f(cam.get('position_median_mm'), 2)} mm,"
-                    f" max {_f(cam.get('position_max_mm'), 2)} mm; rotation median "
-                    f"{_f(cam.get('rotation_median_deg'), 3)} deg, max "
-                    f"{_f(cam.get('rotation_max_deg'), 3)} deg ({cam.get('n')} images)"]
-        model = r.get("model") or {}
-        if model:
-            h = model.get("hidden") or {}
-            out += [f"- model: accuracy median {_f(model.get('accuracy_median_mm'), 2)} mm "
-                    f"(p90 {_f(model.get('accuracy_p90_mm'), 2)}), completeness "
-                    f"{_f(model.get('completeness'), 3)}; side hidden from the final view "
-                    f"({_f(model.get('hidden_share_of_surface'), 2)} of the surface): accuracy "
-                    f"{_f(h.get('accuracy_median_mm'), 2)} mm, completeness "
-                    f"{_f(h.get('completeness'), 3)}"]
-        seg = r.get("segmentation") or {}
-        if seg:
-            acc_in = seg.get("accuracy_in") or {}
-            scored = seg.get("scored_in") or {}
-            out += [f"- segmentation: {_f(r.get('segmentation_accuracy'), 3)} against the "
+        cam = r.camera_pose_error
+        if _held(cam):
+            out += [f"- camera poses: position median {_f(cam.position_median_mm, 2)} mm,"
+                    f" max {_f(cam.position_max_mm, 2)} mm; rotation median "
+                    f"{_f(cam.rotation_median_deg, 3)} deg, max "
+                    f"{_f(cam.rotation_max_deg, 3)} deg ({cam.n} images)"]
+        surveys = [(c, getattr(r, f"capture_{c}", None)) for c in ("a", "b")]
+        surveys = [(c, s) for c, s in surveys if s is not None
+                   and s.survey_centre_error_mm is not None]
+        if surveys:
+            out += ["- survey (the object's sphere the rings looked at, from the arm's "
+                    "photographs): " + "; ".join(
+                        f"{c.upper()} centre {_f(s.survey_centre_error_mm, 1)} mm off, "
+                        f"radius x{_f(s.survey_radius_ratio, 3)}" for c, s in surveys)]
+        model = r.model
+        if _held(model):
+            h = model.hidden or record.SurfaceScore()
+            out += [f"- model: accuracy median {_f(model.accuracy_median_mm, 2)} mm "
+                    f"(p90 {_f(model.accuracy_p90_mm, 2)}), completeness "
+                    f"{_f(model.completeness, 3)}; side hidden from the final view "
+                    f"({_f(model.hidden_share_of_surface, 2)} of the surface): accuracy "
+                    f"{_f(h.accuracy_median_mm, 2)} mm, completeness "
+                    f"{_f(h.completeness, 3)}"]
+        seg = r.segmentation
+        if _held(seg):
+            acc_in = seg.accuracy_in or {}
+            scored = seg.scored_in or {}
+            out += [f"- segmentation: {_f(r.segmentation_accuracy, 3)} against the "
                     f"rendered link labels (points seen in A: {_f(acc_in.get('a'), 3)} of "
                     f"{scored.get('a', '-')}, in B: {_f(acc_in.get('b'), 3)} of "
-                    f"{scored.get('b', '-')}; {_f(seg.get('off_surface_share'), 3)} of the "
+                    f"{scored.get('b', '-')}; {_f(seg.off_surface_share, 3)} of the "
                     f"points left out: no view, or most views, put them off the object); nearest "
                     f"true surface at A: "
-                    f"{_f(seg.get('accuracy_nearest_surface_at_a'), 3)}"]
+                    f"{_f(seg.accuracy_nearest_surface_at_a, 3)}"]
         out += tree_lines(r)
-        out += manipulation_lines(r.get("manipulation"))
-        out += registration_lines(r.get("registration"))
-        ts = r.get("timings_s") or {}
+        out += manipulation_lines(r.manipulation)
+        out += registration_lines(r.registration)
+        ts = r.timings_s or {}
         if ts:
             out += ["- time (s): " + ", ".join(f"{k} {_f(v, 1)}" for k, v in ts.items())
-                    + (f" (from cache: {', '.join(r['cached_stages'])})"
-                       if r.get("cached_stages") else "")]
+                    + (f" (from cache: {', '.join(r.cached_stages)})"
+                       if r.cached_stages else "")]
         for pic in (f"{name}_reconstruction.png", f"{name}_errors.png"):
             out += ["", f"![{pic}]({pic})"]
     return "\n".join(out) + "\n"

@@ -73,6 +73,7 @@ from sim.evaluate.scoring import (
     score_manipulation,
     score_registration,
     score_scene,
+    score_survey,
     summarise_manipulations,
     true_registration,
 )
@@ -140,6 +141,7 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
                 result[f"capture_{c}"] = {k: meta[k] for k in
                                           ("n_planned", "n_captured", "max_fk_position_error_mm",
                                            "max_fk_rotation_error_deg") if k in meta}
+                result[f"capture_{c}"].update(score_survey(chain["capture_set"]))
             result["_sets"] = {c: str(p) for c, p in sets.items()}
             stage = "reconstruct"
             model_dir, meta, hit = reconstruct_stage(sets["a"], sets["b"], tuple(keys), ev,

@@ -402,6 +402,20 @@ def score_scene(scene: Scene, registered, sfm_poses: dict, T_reg, set_a: Path,
 
 
 
+def score_survey(capture_set: Path) -> dict:
+    """How far the capture's survey (the object's sphere the robot found and planned its rings
+    around, capture.json) is from the object's true bounding sphere (ground_truth/poses.json):
+    the centre's distance (mm) and the radius's ratio; empty for a capture without them."""
+    found = read_json(Path(capture_set) / "capture.json").get("object_sphere")
+    truth = read_json(Path(capture_set) / "ground_truth" / "poses.json").get(
+        "object_bounding_sphere")
+    if not found or not truth:
+        return {}
+    return {"survey_centre_error_mm": 1e3 * float(np.linalg.norm(
+                np.subtract(found["centre"], truth["centre"]))),
+            "survey_radius_ratio": float(found["radius"]) / float(truth["radius"])}
+
+
 def score_registration(routes: dict, T_true, model) -> dict:
     """Each registration route's error against the true registration (rotation deg, translation
     mm at the model's points, scale %): ``{"truth_errors": {route: {...}}}``."""
@@ -512,7 +526,8 @@ def manipulation_reference_stage(scene: Scene, true_joint: str, run: dict, q_sta
                                  ) -> tuple[dict, dict, bool]:
     """Scoring only, after the motion: the run's own grasp replayed (:func:`sim.manipulate.
     replay`: the same grasp frame on the object -- point, normal, the gripper's roll -- reached
-    by the run's own arm configurations, pre-grasp to grasp, from ``q_start``, the run's start)
+    by the run's own arm configurations, pre-grasp to grasp, from ``q_start``, the run's start,
+    by the run's own travel there when it went by the home posture)
     and moved by the same requested motion, but along the scene's TRUE joint ``true_joint``
     (the force the joint itself asks of this grasp: friction, damping, inertia, the arm's own
     dynamics), and along the true joint made as wrong as the accuracy gates allow
@@ -528,7 +543,7 @@ def manipulation_reference_stage(scene: Scene, true_joint: str, run: dict, q_sta
     sense = 1.0 if float(np.dot(tj.axis, run["estimate"]["axis"])) >= 0 else -1.0
     amount = sense * float(run["requested"])
     grasp = {k: run.get(k) for k in ("grasp_point", "grasp_normal", "grasp_roll_deg",
-                                     "grasp_hidden", "grasp_visibility", "approach")}
+                                     "grasp_hidden", "grasp_visibility", "approach", "travel")}
     inputs = {"scene_hash": scene_hash, "joint": true_joint, "amount": amount, "grasp": grasp,
               "q_start": list(q_start), "code": _manipulate_sources(), "tolerance": 1}
 

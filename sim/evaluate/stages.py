@@ -340,12 +340,17 @@ def fresh_view_stage(scene: Scene, capture_set: Path, capture_key: str, ev: Eval
     from sim.capture import capture_fresh_view  # EGL: see the top
 
     q_start = last_arm_pose(capture_set)
+    sphere = read_json(Path(capture_set) / "capture.json").get("object_sphere")
+    if sphere is None:
+        raise StageError("fresh_view", f"{capture_set}/capture.json has no object_sphere (the "
+                         "survey's sphere the capture looked at): capture the set again")
 
     def build(folder: Path) -> dict:
         fv = capture_fresh_view(perturb.capture_scene(scene, ev.perturb, "a"), "a", q_start,
                                 folder / "fresh", seed=ev.seed,
                                 capture_config=ev.capture_settings.capture,
-                                plan_config=ev.view_plan())
+                                plan_config=ev.view_plan(),
+                                target=(sphere["centre"], sphere["radius"]))
         perturb.perturb_fresh_pose(fv.pose_file, scene, ev.perturb, ev.seed)
         return {"q": fv.q.tolist()}  # the arm's configuration now: the manipulation's start
 

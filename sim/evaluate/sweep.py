@@ -18,7 +18,8 @@ Layout of the output folder ``OUT``:
 - ``OUT/cache/``: the stage cache shared by every run (:mod:`sim.cache`: written atomically,
   locked per stage, so concurrent workers never build a stage twice or read half of one);
 - ``OUT/runs/<run id>/run.json``: each finished run's record (its spec, status, attempts, worker,
-  result), written whole when the run ends: what ``resume`` reads;
+  result; :class:`sim.evaluate.record.RunRecord` with the schema_version), written whole when the
+  run ends: what ``resume`` reads;
 - one run per scene (the main job's default: one seed): the pictures and ``results.json`` in
   ``OUT`` exactly as before (``{"scenes": {name: result}, "meta": ...}``);
 - a sweep (several runs of a scene: seeds, perturbations): each run's own report folder
@@ -32,7 +33,11 @@ A run whose worker dies (killed, out of memory, a crash in native code) is run a
 sweep is in the merged results, finished or not (``"not run"`` while a sweep is under way or
 after an interruption). A run that raises is recorded as failed with its error, not retried (it
 would raise again). With ``resume``, runs whose record holds the same spec and code are taken
-from it, not run again.
+from it, not run again; a record this code cannot take as it stands (unreadable, not JSON, of
+another schema_version or with a key or value :mod:`sim.evaluate.record` does not hold) is not
+trusted and not fatal: its run is run again, and a warning names the file and why. Figures that
+were not written by this code's record could not be merged into the results anyway, and running
+the run again is what the user asked ``--resume`` for: a complete sweep.
 """
 
 from __future__ import annotations
@@ -51,9 +56,9 @@ from tqdm import tqdm
 
 import artrecon
 import sim
-from artrecon.files import read_json, write_json_atomic
+from artrecon.files import write_json_atomic
 from sim import cache
-from sim.evaluate import gates, report, sweep_report
+from sim.evaluate import gates, record, report, sweep_report
 from sim.evaluate.backends import RAY_EXTRA, SweepError, execute, make_backend  # noqa: F401
 from sim.evaluate.config import EvalConfig
 from sim.evaluate.runner import evaluate_scene, run_meta
@@ -316,26 +321,32 @@ class _State:
     def __init__(self, specs, out, layout, sweep, command, code, run_fn):
         self.specs, self.out, self.layout, self.sweep = specs, out, layout, sweep
         self.command, self.code, self.run_fn = command, code, run_fn
-        self.records: dict[str, dict] = {}
+        self.records: dict[str, record.RunRecord] = {}
         self.wall_s: float | None = None
         self.perturbations: dict | None = None
 
     def run_dir(self, spec: RunSpec) -> Path:
         return self.out / "runs" / spec.run_id
 
-    def recorded(self, spec: RunSpec) -> dict | None:
-        """The finished record of ``spec`` if it holds the same spec and code (resume)."""
+    def recorded(self, spec: RunSpec) -> record.RunRecord | None:
+        """The finished record of ``spec`` if it holds the same spec and code (resume); None
+        (the run runs again) when it does not, or when its run.json is unreadable or not of
+        this code's record (:func:`sim.evaluate.record.read_run`: a warning says why)."""
         path = self.run_dir(spec) / "run.json"
         if not path.is_file():
             return None
         try:
-            rec = read_json(path)
-        except (OSError, ValueError) as err:
+            rec = record.read_run(path)
+        except OSError as err:
             log.warning("resume: %s unreadable (%s): running %s again", path, err, spec.run_id)
             return None
-        why = ("its spec differs" if rec.get("spec") != spec.describe() else
-               "the code changed since" if rec.get("code") != self.code else
-               "its worker died" if rec.get("status") == "died" else None)
+        except record.SchemaError as err:
+            log.warning("resume: running %s again: its record is not one this code reads: %s",
+                        spec.run_id, err)
+            return None
+        why = ("its spec differs" if rec.spec is None or rec.spec.to_json() != spec.describe()
+               else "the code changed since" if rec.code != self.code else
+               "its worker died" if rec.status == "died" else None)
         if why:
             log.info("resume: running %s again: %s", spec.run_id, why)
             return None
@@ -359,7 +370,7 @@ class _State:
                 "log": None if inline else str(run_dir / "log.txt"),
                 "run_fn": self.run_fn, "command": self.command, "attempt": attempt}
 
-    def finish(self, spec: RunSpec, attempts: int, outcome: dict) -> dict:
+    def finish(self, spec: RunSpec, attempts: int, outcome: dict) -> record.RunRecord:
         """Record a run that ended (its result, or a failure that stands for it)."""
         if outcome["status"] == "done":
             result = outcome["result"]
@@ -374,17 +385,19 @@ class _State:
                   "passed" if result.get("passed") and not result.get("error") else "failed")
         if attempts > 1:
             result["attempts"] = attempts
-        rec = {"id": spec.run_id, "group": spec.group, "spec": spec.describe(),
-               "code": self.code, "status": status, "attempts": attempts,
-               "worker": {k: outcome.get(k) for k in ("host", "pid", "wall_s")},
-               "dir": os.path.relpath(self.run_dir(spec), self.out), "result": result}
-        write_json_atomic(self.run_dir(spec) / "run.json", rec)
+        path = self.run_dir(spec) / "run.json"
+        rec = record.RunRecord.from_json(report._clean({
+            "id": spec.run_id, "group": spec.group, "spec": spec.describe(), "code": self.code,
+            "status": status, "attempts": attempts,
+            "worker": {k: outcome.get(k) for k in ("host", "pid", "wall_s")},
+            "dir": os.path.relpath(self.run_dir(spec), self.out), "result": result}), str(path))
+        write_json_atomic(path, record.run_file(rec))
         self.records[spec.run_id] = rec
         self.write()
         return rec
 
     def n_failed(self) -> int:
-        return sum(r["status"] in ("failed", "died") for r in self.records.values())
+        return sum(r.status in ("failed", "died") for r in self.records.values())
 
     def write(self) -> dict:
         """The merged results.json, results.md and pictures, from the records so far; returns
@@ -397,9 +410,9 @@ class _State:
                              "runs": len(self.specs), "wall_s": self.wall_s}
         done = [self.records[s.run_id] for s in self.specs if s.run_id in self.records]
         for rec in done:
-            meta["scene_hashes"][rec["result"]["scene"]] = rec["result"].get("scene_hash")
+            meta["scene_hashes"][rec.result.scene] = rec.result.scene_hash
         if self.layout == "scenes":
-            results = {"scenes": {rec["result"]["scene"]: rec["result"] for rec in done},
+            results = {"scenes": {rec.result.scene: rec.result.to_json() for rec in done},
                        "meta": meta}
             return report.write_results(results, self.out)
         meta["seeds"] = sorted({s.config.seed for s in self.specs})
@@ -409,12 +422,14 @@ class _State:
         runs = []
         for spec in self.specs:
             rec = self.records.get(spec.run_id)
-            if rec is None:
-                rec = {"id": spec.run_id, "group": spec.group, "spec": spec.describe(),
-                       "status": "not run", "attempts": 0, "worker": None,
-                       "dir": os.path.relpath(self.run_dir(spec), self.out), "result": None}
+            if rec is None:  # no code: it did not run
+                rec = record.RunRecord.from_json(report._clean({
+                    "id": spec.run_id, "group": spec.group, "spec": spec.describe(),
+                    "status": "not run", "attempts": 0, "worker": None,
+                    "dir": os.path.relpath(self.run_dir(spec), self.out), "result": None}))
             runs.append(rec)
-        results = {"meta": meta, "runs": runs, "summary": sweep_report.sweep_summary(runs)}
+        results = record.Results(meta=record.Meta.from_json(report._clean(meta)), runs=runs,
+                                 summary=sweep_report.sweep_summary(runs))
         return sweep_report.write_sweep(results, self.out)
 
 

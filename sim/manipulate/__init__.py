@@ -201,7 +201,8 @@ def replay(scene, estimate: JointEstimate, amount: float, run: dict, *, q_start=
                           np.asarray(run["grasp_normal"], float),
                           bool(run.get("grasp_hidden")), run.get("grasp_visibility", ""))
     plan, why = replay_plan(world.kin, planning_config, cand, float(run["grasp_roll_deg"]),
-                            np.asarray(run["approach"], float), estimate, amount)
+                            np.asarray(run["approach"], float), estimate, amount,
+                            travel=run.get("travel"))
     if plan is None:
         raise ManipulationError(f"the run's grasp cannot be replayed: {why}")
     return execute_plan(world, plan, estimate, amount, q_start,

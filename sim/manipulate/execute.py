@@ -57,6 +57,8 @@ class GripConfig:
     """shortest motion (s)"""
     travel_speed: float = 1.0
     """joint-space travel speed to the pre-grasp pose (rad/s)"""
+    travel_resample: float = 0.05
+    """a travel by the home posture is followed through waypoints this far apart (rad)"""
     approach_time: float = 0.8
     """pre-grasp to grasp (s)"""
     settle_speed: float = 1e-3
@@ -118,6 +120,9 @@ class ManipulationResult:
     approach: list = field(default_factory=list)
     """the plan's arm waypoints from the pre-grasp pose to the grasp pose (rad): the arm's
     configuration at the grasp is the last (scoring's force reference replays them)"""
+    travel: list = field(default_factory=list)
+    """the plan's waypoints from the start to the pre-grasp pose when it went by the home
+    posture (empty: the straight line)"""
     log: list = field(default_factory=list)
     frames: list = field(default_factory=list, repr=False)
     """(time, phase, qpos copy) snapshots, if recording was asked for"""
@@ -252,6 +257,16 @@ class _Run:
                 self.check_contacts()
 
 
+def even_path(q_points: np.ndarray, step: float) -> np.ndarray:
+    """Joint waypoints along the straight lines through ``q_points``, at most ``step`` (rad) apart
+    in any joint and evenly spaced along each line; the given waypoints kept."""
+    out = [q_points[0]]
+    for a, b in zip(q_points[:-1], q_points[1:], strict=True):
+        n = max(1, int(np.ceil(float(np.max(np.abs(b - a))) / step)))
+        out += [a + (b - a) * k / n for k in range(1, n + 1)]
+    return np.array(out)
+
+
 def execute(world: World, plan: Plan, estimate: JointEstimate, amount: float, q_start, *,
             candidates_summary: dict | None = None, planned_in: str = "",
             grip: GripConfig = GripConfig(), record_every: float | None = None
@@ -276,8 +291,15 @@ def execute(world: World, plan: Plan, estimate: JointEstimate, amount: float, q_
     data = fresh_data(world, q_start)
     run = _Run(world, data, grip, record_every)
     run.d.ctrl[world.aidx] = run.command(q_start)
-    travel = max(0.5, float(np.max(np.abs(plan.q_pre - q_start))) / grip.travel_speed)
-    run.follow(np.array([q_start, plan.q_pre]), travel, "travel")
+    if plan.travel is not None and np.allclose(plan.travel[0], q_start, atol=1e-6):
+        # by the home posture: waypoints evenly spaced, so that follow's speed is even
+        path = even_path(np.asarray(plan.travel, float), grip.travel_resample)
+        travel = max(0.5, float(np.sum(np.abs(np.diff(path, axis=0)).max(axis=1)))
+                     / grip.travel_speed)
+        run.follow(path, travel, "travel")
+    else:
+        travel = max(0.5, float(np.max(np.abs(plan.q_pre - q_start))) / grip.travel_speed)
+        run.follow(np.array([q_start, plan.q_pre]), travel, "travel")
     run.settle("travel")
     run.follow(plan.approach, grip.approach_time, "approach")
     run.settle("approach")
@@ -377,6 +399,7 @@ def execute(world: World, plan: Plan, estimate: JointEstimate, amount: float, q_
         candidates=candidates_summary or {}, planned_in=planned_in,
         q_start=[float(x) for x in q_start],
         approach=[[float(x) for x in qk] for qk in plan.approach], log=messages,
+        travel=[] if plan.travel is None else [[float(x) for x in qk] for qk in plan.travel],
         frames=run.frames)
     say("%s: requested %.4g along the %s estimate; peak weld force %.1f N (rms %.1f), torque "
         "%.2f N m; tracking max %.2f deg, grasp path error max %.1f mm", world.name, amount,

@@ -98,6 +98,16 @@ class PlanningConfig:
     """rolls of the gripper about the approach axis tried per candidate (deg)"""
     max_candidates: int = 40
     """candidates planned, in order of preference, before giving up"""
+    pull_alignment_deg: float = 30.0
+    """candidates whose normal lies within this angle (deg) of the motion's direction at their
+    point rank first (:func:`sim.manipulate.planning.rank`)"""
+    facing_min_turn: float = 0.35
+    """the last start of a candidate's IK, home with the rail turned to the grasp's side
+    (:func:`sim.manipulate.planning.facing_start`), is tried only when the rail turns by at
+    least this much (rad) from the start and from home: nearer, it is the same branch"""
+    facing_min_horizontal: float = 0.3
+    """a normal with less horizontal component than this faces up or down: the grasp's side is
+    then the point's own azimuth about the rail's axis"""
     retry_spacing: float = 0.015
     """after a candidate failed, the next one tried lies at least this far (m) from every one
     tried (the nearer ones come after the others): what stops one candidate (out of reach,

@@ -287,6 +287,12 @@ class PlanningWorld:
         """
         return self._path_contacts([q_from, q_to], min_steps=2)
 
+    def path_contacts(self, q_points) -> tuple[list[str], float]:
+        """:meth:`travel_contacts` along straight joint-space lines through ``q_points`` ((k, n)
+        waypoints, as execution follows them); ``at`` in path parameter (0 to 1 over the whole
+        path, each line an equal share)."""
+        return self._path_contacts(list(np.asarray(q_points, float)), min_steps=2)
+
     def approach_contacts(self, approach, grasp_point, grasp_links=(), grasp_normal=None
                           ) -> tuple[list[str], float]:
         """Contacts of the arm along the approach (``approach``: (k, n) joint waypoints from the

@@ -22,7 +22,7 @@ def plan_to_json(plan: ViewPlan) -> dict:
     """``plan`` as a JSON-serialisable dict that :func:`plan_from_json` reads back exactly."""
     return {
         "format": PLAN_FORMAT,
-        "centre": _floats(plan.centre), "radius": float(plan.radius),
+        "centre": _floats(plan.centre), "radius": float(plan.radius), "survey": plan.survey,
         "rings": [{f.name: getattr(r, f.name) for f in fields(Ring)} for r in plan.rings],
         "views": [{"index": v.index, "ring": v.ring, "azimuth": float(v.azimuth),
                    "elevation": float(v.elevation), "distance": float(v.distance),
@@ -50,4 +50,5 @@ def plan_from_json(obj: dict) -> ViewPlan:
                           q=None if v["q"] is None else np.array(v["q"], dtype=float),
                           roll_deg=v["roll_deg"], reason=v["reason"]))
     return ViewPlan(centre=np.array(obj["centre"], dtype=float), radius=obj["radius"],
-                    rings=[Ring(**r) for r in obj["rings"]], views=views)
+                    rings=[Ring(**r) for r in obj["rings"]], views=views,
+                    survey=obj.get("survey"))

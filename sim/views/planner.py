@@ -1,8 +1,10 @@
 """Viewpoint planning for eye-in-hand capture: rings of views around the object, reached by the arm.
 
-The object's bounding sphere (from its visible geoms in the compiled model) fixes the ring centre
-and, with the wrist camera's field of view, the band of camera distances at which the object fills
-a good share of the image (:attr:`ViewPlanConfig.fill_range`). Every view looks at the sphere's
+The object's bounding sphere, as the robot's survey finds it from its own photographs
+(:func:`sim.views.survey.survey_object`: the visual hull of the object's silhouettes against the
+empty cell, never the model's geometry), fixes the ring centre and, with the wrist camera's field
+of view, the band of camera distances at which the object fills a good share of the image
+(:attr:`ViewPlanConfig.fill_range`). Every view looks at the sphere's
 centre; each is solved with the arm's inverse kinematics (rail and arm together, joint limits
 respected, :func:`sim.robot.solve_view_ik`) and checked for collisions of the arm links in MuJoCo
 (contacts after ``mj_forward``: with the table, the object, the floor and the arm itself).
@@ -28,7 +30,6 @@ from sim import robot
 from sim.views.records import ELEVATION_LIMITS_DEG, Ring, View, ViewPlan, ViewPlanConfig
 from sim.views.rings import (
     fill_at_distance,
-    object_bounding_sphere,
     order_for_rail,
     ring_distance,
     ring_phases,
@@ -36,6 +37,7 @@ from sim.views.rings import (
     ring_views,
 )
 from sim.views.solve import check_paths, solve_views
+from sim.views.survey import SurveyConfig, survey_object
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +72,7 @@ def candidates(config: ViewPlanConfig, desired_deg: float, radius: float, K, wid
 
 def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinematics,
                  K: np.ndarray, width: int, height: int, config: ViewPlanConfig, *,
-                 progress=None) -> ViewPlan:
+                 progress=None, survey_config: SurveyConfig = SurveyConfig()) -> ViewPlan:
     """Choose every ring so that the arm reaches all its views without a collision, and solve them.
 
     For each ring (full rings, then top rings) the candidates of :func:`candidates` are tried in
@@ -91,19 +93,22 @@ def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinem
     config : ViewPlanConfig
     progress : tqdm-like, optional
         ``update(n)`` with the views of each ring once it is chosen.
+    survey_config : sim.views.survey.SurveyConfig
+        How the survey looks for the object before the rings are planned.
 
     Returns
     -------
     ViewPlan
         Rings and views in capture order (ring by ring, each swept in one rail direction).
     """
-    centre, radius = object_bounding_sphere(model, data)
+    survey = survey_object(model, data, kin, K, width, height, config, survey_config)
+    centre, radius = survey.centre, survey.radius
     lowest = min((*config.elevations_deg, *config.top_elevations_deg))
     highest = max((*config.elevations_deg, *config.top_elevations_deg))
     lowest = max(ELEVATION_LIMITS_DEG[0], lowest - config.max_elevation_shift_deg)
     highest = min(ELEVATION_LIMITS_DEG[1], highest + config.max_elevation_shift_deg)
     n_full = len(config.elevations_deg)
-    plan = ViewPlan(centre=centre, radius=radius)
+    plan = ViewPlan(centre=centre, radius=radius, survey=survey.to_json())
     q_last = None
     for i, (desired, az0) in enumerate(zip((*config.elevations_deg, *config.top_elevations_deg),
                                            ring_phases(config), strict=True)):

@@ -202,12 +202,15 @@ class ViewPlan:
     """The planned views of one capture."""
 
     centre: np.ndarray
-    """(3,) the object's bounding-sphere centre, every camera looks at it"""
+    """(3,) the centre of the object's bounding sphere as the survey found it
+    (:func:`sim.views.survey.survey_object`); every camera looks at it"""
     radius: float
-    """bounding-sphere radius (m)"""
+    """that sphere's radius (m)"""
     rings: list[Ring] = field(default_factory=list)
     """the rings chosen, in capture order"""
     views: list[View] = field(default_factory=list)
+    survey: dict | None = None
+    """what the survey found (:meth:`sim.views.survey.Survey.to_json`)"""
 
     @property
     def reachable(self) -> list[View]:
