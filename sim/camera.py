@@ -36,6 +36,13 @@ def convert_camera_pose(T_world_camera: np.ndarray) -> np.ndarray:
     return T @ T_GL_CV
 
 
+def true_camera_pose(data, cam_id: int) -> np.ndarray:
+    """T_world_camera : (4, 4) float, the pose of MuJoCo camera ``cam_id`` in ``data`` (after
+    ``mj_forward``), OpenCV convention: where the simulator renders it from."""
+    return convert_camera_pose(np.r_[np.c_[data.cam_xmat[cam_id].reshape(3, 3),
+                                           data.cam_xpos[cam_id]], [[0, 0, 0, 1]]])
+
+
 def intrinsics_matrix(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
     """Pinhole matrix ``K`` : (3, 3) float from focal lengths and principal point in pixels."""
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])

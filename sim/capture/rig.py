@@ -10,7 +10,7 @@ import mujoco
 import numpy as np
 
 from sim import robot
-from sim.camera import convert_camera_pose, mujoco_camera_intrinsics
+from sim.camera import mujoco_camera_intrinsics, true_camera_pose  # noqa: F401 (re-exported)
 from sim.scene import Scene, load_scene
 
 #: The object configurations a capture photographs.
@@ -63,8 +63,3 @@ def make_rig(scene, config: str) -> Rig:
     K, (width, height) = mujoco_camera_intrinsics(model, cam_name)
     return Rig(sc, model, data, kin, cam_id, K, width, height)
 
-
-def true_camera_pose(data: mujoco.MjData, cam_id: int) -> np.ndarray:
-    """T_world_camera : (4, 4) float, the camera's true pose in MuJoCo, OpenCV convention."""
-    return convert_camera_pose(np.r_[np.c_[data.cam_xmat[cam_id].reshape(3, 3),
-                                           data.cam_xpos[cam_id]], [[0, 0, 0, 1]]])

@@ -289,8 +289,8 @@ class PlanningWorld:
 
     def path_contacts(self, q_points) -> tuple[list[str], float]:
         """:meth:`travel_contacts` along straight joint-space lines through ``q_points`` ((k, n)
-        waypoints, as execution follows them); ``at`` in path parameter (0 to 1 over the whole
-        path, each line an equal share)."""
+        waypoints, as execution follows them); ``at`` from 0 to 1 by joint-space length along
+        the whole path."""
         return self._path_contacts(list(np.asarray(q_points, float)), min_steps=2)
 
     def approach_contacts(self, approach, grasp_point, grasp_links=(), grasp_normal=None

@@ -24,7 +24,7 @@ import mujoco
 import numpy as np
 
 from sim import robot
-from sim.camera import convert_camera_pose
+from sim.camera import true_camera_pose
 from sim.views.clearance import robot_bodies
 from sim.views.records import View, ViewPlanConfig
 from sim.views.rings import object_bodies, ring_distance
@@ -89,7 +89,7 @@ class Survey:
     centre: np.ndarray
     """(3,) centre of the visual hull's bounding box (world, m)"""
     radius: float
-    """distance from ``centre`` to the farthest corner of a kept voxel (m)"""
+    """distance from ``centre`` to the farthest kept voxel's centre (m)"""
     lower: np.ndarray
     """(3,) lower corner of the hull's bounding box (world, m)"""
     upper: np.ndarray
@@ -228,8 +228,7 @@ class _Camera:
         model, data, r = self.model, self.data, self.renderer
         data.qpos[self.qidx] = q
         mujoco.mj_forward(model, data)
-        T = convert_camera_pose(np.r_[np.c_[data.cam_xmat[self.cam_id].reshape(3, 3),
-                                            data.cam_xpos[self.cam_id]], [[0, 0, 0, 1]]])
+        T = true_camera_pose(data, self.cam_id)
         color = r.render(data, self.K, T, self.width, self.height).color
         far = np.eye(4)
         far[:3, 3] = [0.0, 0.0, -1.0e3]
