@@ -2,10 +2,11 @@
 (``--jobs 2``), optionally on a local Ray cluster too, and whether the figures are the same
 (issue 26). Figures only, no asserts (speed is never asserted by a test)::
 
-    nice -n 15 python benchmarks/bench_sweep.py [--scene pliers] [--seeds 0-1] [--views 12]
-                                                [--manipulate] [--ray] [--out runs/bench_sweep]
+    nice -n 15 python benchmarks/bench_sweep.py [--scene pliers [truck ...]] [--seeds 0-1]
+                                                [--views 12] [--manipulate] [--ray]
+                                                [--out runs/bench_sweep]
 
-Each configuration runs the same sweep (``python -m sim.evaluate SCENE --seeds S --views V
+Each configuration runs the same sweep (``python -m sim.evaluate SCENE ... --seeds S --views V
 --no-manipulate``) into a fresh folder of its own (``OUT/<time>/jobs1``, ``jobs2``, ``ray``: a
 fresh stage cache each, so every run computes everything). Prints the wall time of each, the
 ratio, the load average of the machine before and after (others' work slows both), and whether
@@ -53,7 +54,7 @@ def main(argv=None) -> int:
     from sim.evaluate import EvalConfig, sweep
 
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--scene", default="pliers")
+    p.add_argument("--scene", nargs="+", default=["pliers"], help="one or more scenes")
     p.add_argument("--seeds", type=sweep.parse_seeds, default=[0, 1])
     p.add_argument("--views", type=int, default=12)
     p.add_argument("--manipulate", action="store_true")
@@ -62,12 +63,12 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     out = args.out / datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
     ev = EvalConfig(views=args.views, manipulate=args.manipulate)
-    specs = sweep.plan([args.scene], ev, args.seeds)
+    specs = sweep.plan(args.scene, ev, args.seeds)
     configs = [("jobs1", sweep.SweepConfig(jobs=1, progress=False)),
                ("jobs2", sweep.SweepConfig(jobs=2, progress=False))]
     if args.ray:
         configs.append(("ray", sweep.SweepConfig(backend="ray", jobs=2, progress=False)))
-    print(f"{len(specs)} runs ({args.scene}, seeds {args.seeds}, {args.views} views per ring, "
+    print(f"{len(specs)} runs ({', '.join(args.scene)}, seeds {args.seeds}, {args.views} views per ring, "
           f"{'with' if args.manipulate else 'no'} manipulation) on {os.cpu_count()} cores; "
           f"out {out}", flush=True)
     walls, figures = {}, {}
