@@ -90,6 +90,7 @@ from artrecon.io import (
     load_image_folder,
     parse_intrinsics,
 )
+from artrecon.matches_stage import check_matches, load_matches, match_stage
 from artrecon.model import ArticulatedModel
 from artrecon.model_stage import build_model
 from artrecon.settings import ReconstructConfig, with_settings
@@ -109,12 +110,15 @@ __all__ = ["STAGES", "ReconstructConfig", "prepare_configuration", "reconstruct"
 STAGES = {
     "configurations": "OUT/a and OUT/b: each configuration's cameras (SfM), dense points and "
                       "object region",
-    "model": "OUT/matches.npz, OUT/links/, OUT/model.json: matches across A and B, links, "
-             "joints",
+    "matches": "OUT/matches/: the 3D-3D matches across A and B, the background matches, the "
+               "guided matching's candidates and the covariances",
+    "model": "OUT/matches.npz, OUT/links/, OUT/model.json: links, joints",
 }
 #: Files that tell a folder written by :func:`reconstruct` (whole, or stopped after the
-#: configurations) from any other folder.
+#: configurations or the matches) from any other folder.
 OUTPUT_MARKERS = ("model.json", "a/configuration.json", "b/configuration.json")
+#: The matches stage's record in the output folder (:mod:`artrecon.matches_stage`).
+MATCHES_RECORD = "matches/matches.json"
 
 
 
@@ -231,23 +235,29 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
         out_dir = _check_output(out_dir, [set_a.root, set_a.image_dir, set_b.root,
                                           set_b.image_dir], overwrite, from_stage,
                                 example=set_a.root.parent / "model")
+    matches = None
     if first > 0:  # the configurations of out_dir, exactly as this run would compute them
         settings = stage_settings(config.sfm, config.dense, config.region)
         restart = ("start from the configurations instead (without --from, "
                    "from_stage='configurations'), which recomputes them")
-        for key, iset, intr, known in (("a", set_a, intr_a, poses_a),
-                                       ("b", set_b, intr_b, poses_b)):
-            check_reusable(out_dir / key, iset, intr, known, settings, seed,
-                           which=key.upper(), restart=restart)
+        records = {key: check_reusable(out_dir / key, iset, intr, known, settings, seed,
+                                       which=key.upper(), restart=restart)
+                   for key, iset, intr, known in (("a", set_a, intr_a, poses_a),
+                                                  ("b", set_b, intr_b, poses_b))}
         configurations = (out_dir / "a", out_dir / "b")
+        if first > 1:  # and its matches, made from them with this run's matching settings
+            check_matches(out_dir / "matches",
+                          {k: r["inputs_digest"] for k, r in records.items()}, config, seed,
+                          restart="start from the matches instead (--from matches, "
+                          "from_stage='matches'), which recomputes them from OUT/a and OUT/b")
+            matches = out_dir / "matches"
     if out_dir is not None:
         work = make_work_dir(out_dir)  # also removes those of interrupted runs
     else:
         work = Path(tempfile.mkdtemp(prefix="artrecon-"))
     try:
         model = _run(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work, seed, config,
-                     progress, jobs, configurations, reuse_only=first > 0,
-                     stop_after_configurations=last == 0)
+                     progress, jobs, configurations, matches, first=first, last=last)
         if model is not None:
             model.metadata["timings"]["total"] = time.perf_counter() - t_all
         if out_dir is not None:
@@ -279,28 +289,38 @@ def _stage_range(from_stage: str, to_stage: str) -> tuple[int, int]:
 def _check_output(out_dir, inputs, overwrite: bool, from_stage: str, example) -> Path:
     """The output folder of a run from ``from_stage``: a new folder (or, with ``overwrite``, an
     earlier result) for a run from the start; for a later start, an existing folder of an
-    earlier run, holding no model unless ``overwrite`` (its configurations are checked by the
-    caller, against this run's inputs)."""
+    earlier run, holding nothing this run would write (the matches, from ``"matches"``; a
+    model) unless ``overwrite`` (what it starts from is checked by the caller, against this
+    run's inputs)."""
     out_dir = Path(out_dir)
     check_output_path(out_dir, inputs, example=example)
     holds_model = (out_dir / "model.json").exists()
+    holds_matches = (out_dir / MATCHES_RECORD).exists()
     if from_stage == "configurations":
         if (out_dir.is_dir() and not overwrite and not holds_model
                 and (out_dir / "a" / "configuration.json").is_file()):
-            raise InputError(f"output folder {out_dir} exists and holds the configurations of a "
-                             "run stopped after them (--to configurations): continue it with "
-                             "--from model, or pass --overwrite to start it over")
+            stopped, next_stage = (("the configurations and matches of a run stopped after "
+                                    "them (--to matches)", "model") if holds_matches else
+                                   ("the configurations of a run stopped after them "
+                                    "(--to configurations)", "matches"))
+            raise InputError(f"output folder {out_dir} exists and holds {stopped}: continue "
+                             f"it with --from {next_stage}, or pass --overwrite to start it "
+                             "over")
         return check_output_dir(out_dir, inputs, overwrite=overwrite, marker=OUTPUT_MARKERS,
                                 example=example)
     if out_dir.is_symlink() or not out_dir.is_dir():
         raise InputError(f"--from {from_stage}: {out_dir} is not a folder; --out must name the "
                          "output folder of an earlier run of these images (whole, or stopped "
-                         "with --to configurations): run without --from to start from the "
-                         "beginning")
+                         "with --to configurations or --to matches): run without --from to "
+                         "start from the beginning")
     if holds_model and not overwrite:
         raise InputError(f"--from {from_stage}: {out_dir} holds a model already (model.json); "
-                         "pass --overwrite to replace it (its configurations are kept), or "
-                         "choose another --out")
+                         "pass --overwrite to replace it (the stages before "
+                         f"{from_stage} are kept), or choose another --out")
+    if from_stage == "matches" and holds_matches and not overwrite:
+        raise InputError(f"--from matches: {out_dir} holds matches already ({MATCHES_RECORD}): "
+                         "continue with --from model, or pass --overwrite to match again "
+                         "(its configurations are kept)")
     return out_dir
 
 
@@ -333,11 +353,14 @@ def _configuration_in_process(*args) -> None:
 
 def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, poses_a, poses_b,
          work: Path, seed: int, config: ReconstructConfig, progress: bool, jobs: int = 2,
-         configurations: tuple | None = None, reuse_only: bool = False,
-         stop_after_configurations: bool = False) -> ArticulatedModel | None:
-    """The stages into ``work``: the configurations (computed, or reused from copies of
-    ``configurations``; only read back when ``reuse_only``, the caller having checked them),
-    then, unless ``stop_after_configurations``, the model (returned)."""
+         configurations: tuple | None = None, matches: Path | None = None, first: int = 0,
+         last: int = len(STAGES) - 1) -> ArticulatedModel | None:
+    """The stages ``first`` to ``last`` (indices in :data:`STAGES`) into ``work``: the
+    configurations (computed, or reused from copies of ``configurations``; only read back when
+    ``first > 0``, the caller having checked them), the matches (computed into ``work/matches``,
+    or, when ``first > 1``, a copy of ``matches``, which the caller checked), then the model
+    (returned; None when the run stops earlier). The model stage reads the matches back from
+    ``work/matches`` either way."""
     timings: dict[str, float] = {}
     folders = {"a": work / "a", "b": work / "b"}
     if configurations is not None:  # finished per-configuration folders: start from copies
@@ -347,7 +370,7 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     args = {"a": (set_a, folders["a"], intr_a, poses_a, config, seed, "A"),
             "b": (set_b, folders["b"], intr_b, poses_b, config, seed, "B")}
     confs: dict[str, Configuration] = {}
-    if reuse_only:
+    if first > 0:
         confs = {key: load_configuration(folder) for key, folder in folders.items()}
     elif jobs > 1:
         # B in a second (spawned) process while this one does A: the two are independent
@@ -360,22 +383,27 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
             except KeyboardInterrupt:
                 workers.stop(pool)
                 raise
-        if stop_after_configurations:
+        if last == 0:
             return None
         confs["b"] = load_configuration(folders["b"])
     else:
         for key in ("a", "b"):
             confs[key] = _configuration(*args[key], progress)
-    if stop_after_configurations:
+    if last == 0:
         return None
     for key, conf in confs.items():
         timings[f"sfm_{key}"] = conf.record["timings"]["sfm"]
         timings[f"dense_{key}"] = conf.record["timings"]["dense"]
-    sfms = {k: c.sfm for k, c in confs.items()}
-    denses = {k: c.dense for k, c in confs.items()}
-    occluders = {k: c.occluders for k, c in confs.items()}
-    regions = {k: c.object_ids for k, c in confs.items()}
-    backgrounds = {k: c.background_ids for k, c in confs.items()}
     with workers.single_threaded():
+        if first > 1:
+            shutil.copytree(matches, work / "matches", symlinks=True)
+            found = load_matches(work / "matches")
+        else:  # written, then read back: the model is the one a run from the folder gives
+            found = match_stage(confs, work / "matches", config, seed)
+        if last == 1:
+            return None
+        sfms = {k: c.sfm for k, c in confs.items()}
+        denses = {k: c.dense for k, c in confs.items()}
+        occluders = {k: c.occluders for k, c in confs.items()}
         return build_model(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work, seed, config,
-                           sfms, denses, occluders, regions, backgrounds, timings)
+                           sfms, denses, occluders, found, timings)
