@@ -1,8 +1,12 @@
-"""The model stage: the two configurations in, the articulated model out.
+"""The model stage: the two configurations and their matches in, the articulated model out.
 
 Input: what :mod:`artrecon.configuration` left for each configuration (its SfM model, dense
-points, object region). Output, written into the run's work folder (which
-:func:`artrecon.reconstruct.reconstruct` publishes whole as ``OUT``)::
+points, occluders) and what :mod:`artrecon.matches_stage` left in ``OUT/matches/``, read back
+(the object's and the background's 3D-3D matches, the guided matching's candidates, the
+triangulation covariances; :func:`artrecon.matches_stage.load_matches`): a whole run and a run
+continued from the matches (``--from model``) start from the same files. Output, written into
+the run's work folder (which :func:`artrecon.reconstruct.reconstruct` publishes whole as
+``OUT``)::
 
     matches.npz          the 3D-3D matches the links were fitted to (points_a, points_b,
                          point3D_ids_a, point3D_ids_b, votes, labels; the guided matches
@@ -11,10 +15,12 @@ points, object region). Output, written into the run's work folder (which
 
 and the :class:`artrecon.model.ArticulatedModel` it returns (saved as ``model.json``).
 
-Steps: SIFT matches across the configurations lifted to 3D-3D pairs (:mod:`artrecon.features`),
-the object's and the background's told apart by the object regions, the candidates for the
-guided matching and the points' triangulation covariances (:mod:`artrecon.uncertainty`); then
-:func:`artrecon.articulation.articulate`, and the model with its metadata.
+Steps: :func:`artrecon.articulation.articulate` (links, base, dense labels, kinematic tree,
+joints, their evidence), then the model with its metadata. Of the settings, this stage reads
+the segmentation's, guided matching's, joints', assignment's, free space's and confidence's,
+which may differ from the run that matched (``segmentation.covariances`` excepted: whether the
+covariances were computed is the matches stage's), and some of the configurations' (sfm,
+region), which their records fix.
 """
 
 from __future__ import annotations

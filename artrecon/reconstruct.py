@@ -8,9 +8,11 @@ Stages (each its own module, plain data between them)::
 
 Where they live: this module is the entry (:func:`reconstruct`: the inputs checked, the output
 folder, which stages run); :mod:`artrecon.configuration` is the per-configuration stage (SfM,
-dense points, object region); :mod:`artrecon.model_stage` the model stage (matching A x B, the
-model and its files), which calls :func:`artrecon.articulation.articulate` for every step after
-matching (the links' motions: :mod:`artrecon.link_motions`). The settings of every stage are one
+dense points, object region); :mod:`artrecon.matches_stage` the matches stage (matching A x B
+lifted to 3D-3D pairs, the background's, the guided matching's candidates, the covariances);
+:mod:`artrecon.model_stage` the model stage (the model and its files), which calls
+:func:`artrecon.articulation.articulate` for every step after matching (the links' motions:
+:mod:`artrecon.link_motions`). The settings of every stage are one
 :class:`artrecon.settings.ReconstructConfig`.
 
 The model frame is configuration A's SfM frame: arbitrary scale and placement when the
@@ -35,27 +37,43 @@ Output folder (written whole or not at all: built in a temporary sibling folder,
     OUT/a/dense.ply, OUT/b/dense.ply  the object's dense points of each configuration (own frame)
     OUT/a/configuration.json, ...     the per-configuration stage's record and its other files
                                       (the folder contract of artrecon.configuration)
-    OUT/matches.npz                   the 3D-3D matches (points_a, points_b, ids, votes, labels,
-                                      background_a, background_b)
+    OUT/matches/                      the matches stage's folder: the matches as matched, the
+                                      background's, the guided matching's candidates, the
+                                      covariances, the record matches.json (the folder
+                                      contract of artrecon.matches_stage)
+    OUT/matches.npz                   the 3D-3D matches the links were fitted to (points_a,
+                                      points_b, ids, votes, labels; the guided ones appended),
+                                      background_a, background_b
 
 Running part of it (:data:`STAGES`; ``from_stage``/``to_stage``, the command's ``--from`` and
-``--to``). The folder holds the result of two stages, and a run may stop after the first or
-start at the second::
+``--to``). The folder holds the result of three stages; a run may stop after any of them and
+start at any of them::
 
     configurations   images -> OUT/a, OUT/b (each: SfM, dense points, object region; written
                      side by side, the record configuration.json last)
-    model            OUT/a, OUT/b -> OUT/matches.npz, OUT/links/, OUT/model.json
+    matches          OUT/a, OUT/b -> OUT/matches/ (the record matches.json last)
+    model            OUT/a, OUT/b, OUT/matches/ -> OUT/matches.npz, OUT/links/, OUT/model.json
 
-``to_stage="configurations"`` publishes a folder holding OUT/a and OUT/b only.
-``from_stage="model"`` starts from such a folder (or a whole result, with ``overwrite``): each
-configuration's record must name the same images, intrinsics, poses, settings, seed and artrecon
-version as this run (else InputError naming what differs; they are never recomputed quietly),
-and the folder is published again whole, the configurations copied and the model added. The
-model is the one the whole run gives, bit for bit (tests/test_stages.py): the whole run reads
-configuration B back from its folder too, and A's folder holds what A's stage returned
-(artrecon.configuration). Nothing finer is a
-stage: a configuration's SfM and dense points share one record, so a folder whose dense stage
-failed holds no result a later run could check.
+``to_stage="configurations"`` publishes a folder holding OUT/a and OUT/b only,
+``to_stage="matches"`` one holding OUT/matches/ too. A later start takes such a folder (or a
+whole result, with ``overwrite``) and checks what it starts from against this run, never
+recomputing it quietly (InputError naming what differs and which stage to start from instead):
+each configuration's record must name the same images, intrinsics, poses, settings (sfm, dense,
+region), seed and artrecon version as this run (``from_stage="matches"`` or ``"model"``), and
+the matches' record (``from_stage="model"``) the same configurations (their records' digests),
+match settings (:func:`artrecon.matches_stage.match_settings`: ``match.*`` and
+``segmentation.covariances``), seed and version, with its files whole. The settings of the
+model stage (segmentation, guided matching, joints, assignment ...) may differ: re-running the
+links and joints with other settings does not match again. The folder is published again
+whole, the stages before ``from_stage`` copied and the later ones added.
+
+The continued run's model is the one the whole run gives, bit for bit (tests/test_stages.py):
+the whole run reads configuration B back from its folder too (A's folder holds what A's stage
+returned, artrecon.configuration), and its model stage reads the matches back from OUT/matches/
+as a run ``from_stage="model"`` does. Nothing finer is a stage: a configuration's SfM and dense
+points share one record, so a folder whose dense stage failed holds no result a later run could
+check; the links, joints and dense labels are one stage (:func:`artrecon.articulation.articulate`
+runs them in order).
 """
 
 from __future__ import annotations
@@ -104,9 +122,9 @@ __all__ = ["STAGES", "ReconstructConfig", "prepare_configuration", "reconstruct"
 
 #: The stages a run can start at or stop after (:func:`reconstruct`'s ``from_stage`` and
 #: ``to_stage``, the command's ``--from`` and ``--to``), in order, with what each leaves in the
-#: output folder for the next. Only these two: the output folder keeps nothing finer that a
+#: output folder for the next. Only these three: the output folder keeps nothing finer that a
 #: later run could check and start from (a configuration's SfM and dense points are one record,
-#: :mod:`artrecon.configuration`; matches, links and joints are saved together).
+#: :mod:`artrecon.configuration`; links, joints and dense labels are saved together).
 STAGES = {
     "configurations": "OUT/a and OUT/b: each configuration's cameras (SfM), dense points and "
                       "object region",
@@ -155,9 +173,12 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
     """Articulated model of an object from two image sets, one per configuration.
 
     The whole run by default; ``from_stage`` and ``to_stage`` run part of it (:data:`STAGES`):
-    ``to_stage="configurations"`` writes ``out_dir/a`` and ``out_dir/b`` and stops, and
-    ``from_stage="model"`` starts from those of an existing ``out_dir`` and adds the model to
-    it. The two halves give the model the whole run gives (same inputs, settings and seed).
+    ``to_stage="configurations"`` writes ``out_dir/a`` and ``out_dir/b`` and stops,
+    ``to_stage="matches"`` adds ``out_dir/matches`` and stops; ``from_stage="matches"`` starts
+    from the configurations of an existing ``out_dir``, ``from_stage="model"`` from its
+    configurations and matches (with, if wanted, other settings of the model stage:
+    segmentation, joints ...). The parts give the model the whole run gives (same inputs,
+    settings and seed).
 
     Parameters
     ----------
@@ -176,8 +197,9 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
     config : ReconstructConfig
     overwrite : bool
         Replace an existing ``out_dir`` (only a folder this function wrote: one holding
-        ``model.json`` or the configurations' records). With ``from_stage="model"``: replace the
-        model of an ``out_dir`` that holds one (its configurations are kept).
+        ``model.json`` or the configurations' records). With a later ``from_stage``: replace
+        what the run writes in an ``out_dir`` that holds it already (``"matches"``: its matches
+        and model; ``"model"``: its model); the stages before ``from_stage`` are kept.
     progress : bool
         tqdm bars on stderr.
     jobs : int
@@ -186,24 +208,27 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
     configurations : (folder_a, folder_b), optional
         Folders of finished per-configuration stages of these image sets (e.g. written by the
         harness while it captured): reused when their records name the same inputs and
-        settings, recomputed otherwise. Not with ``from_stage="model"``.
-    from_stage, to_stage : {"configurations", "model"}
-        The first and the last stage to run (:data:`STAGES`). ``from_stage="model"`` needs the
-        ``out_dir`` of an earlier run of these inputs, settings and seed (stopped after the
-        configurations, or whole); their records are checked, never recomputed.
+        settings, recomputed otherwise. Only with ``from_stage="configurations"``.
+    from_stage, to_stage : {"configurations", "matches", "model"}
+        The first and the last stage to run (:data:`STAGES`). A later ``from_stage`` needs the
+        ``out_dir`` of an earlier run of these inputs and seed (stopped after the stage before
+        it, or later, or whole): ``"matches"`` its configurations (of these settings),
+        ``"model"`` its configurations and matches (of these configuration and match settings;
+        the model stage's may differ); their records are checked, never recomputed.
 
     Returns
     -------
     ArticulatedModel or None
         Links with dense oriented points (model frame = configuration A's SfM frame), joints;
-        None when the run stops after the configurations.
+        None when the run stops after the configurations or the matches.
 
     Raises
     ------
     InputError
         Bad folders, images or camera files; an unknown stage, ``from_stage`` after
-        ``to_stage``, or (``from_stage="model"``) an ``out_dir`` without finished
-        configurations of these inputs and settings (the message says what differs).
+        ``to_stage``, or (a later ``from_stage``) an ``out_dir`` without finished
+        configurations (or, ``"model"``, matches) of these inputs and settings (the message
+        says what differs).
     ReconstructionError, DegenerateError
         A stage failed (the message says which and what to try). WeakEvidenceError (a
         ReconstructionError): a joint's evidence is too weak to give its axis
