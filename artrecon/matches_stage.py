@@ -187,15 +187,19 @@ def match_stage(confs: dict, folder: str | Path, config, seed: int) -> Matching:
 
 def _file_problems(folder: Path, record: dict) -> list[str]:
     """The files the record names that are missing or hold other bytes than it names."""
+    files = record.get("files")
+    if not isinstance(files, dict) or not {"object.npz", "background.npz",
+                                           "candidates.npz"} <= set(files):
+        return ["the record does not name the stage's files"]
+    if record.get("covariances") and "covariances.npz" not in files:
+        return ["the record names covariances but no covariances.npz"]
     out = []
-    for name, digest in sorted((record.get("files") or {}).items()):
+    for name, digest in sorted(files.items()):
         path = folder / name
         if not path.is_file():
             out.append(f"{name} is missing")
         elif hashlib.sha256(path.read_bytes()).hexdigest() != digest:
             out.append(f"{name} is not the file the record names (changed or half-written)")
-    if not record.get("files"):
-        out.append("the record names no files")
     return out
 
 

@@ -406,9 +406,9 @@ def _finished_configurations(t: Path, out: Path) -> dict:
 def _matches_record(t: Path, out: Path, configurations: dict | None = None,
                     files: dict | None = None, **settings) -> None:
     """The matches stage's record in ``out/matches`` (its files: ``files``, name -> bytes;
-    default none) as a run with the default settings changed by ``settings`` (``stage.field``:
-    value) and these configurations (default: those of :func:`_finished_configurations`)
-    writes it."""
+    default a stand-in for each) as a run with the default settings changed by ``settings``
+    (``stage.field``: value) and these configurations (default: those of
+    :func:`_finished_configurations`) writes it."""
     import hashlib
 
     from artrecon import __version__
@@ -417,7 +417,10 @@ def _matches_record(t: Path, out: Path, configurations: dict | None = None,
 
     configurations = configurations or _finished_configurations(t, out)
     made = match_settings(with_settings(ReconstructConfig(), settings))
-    files = files if files is not None else {"object.npz": b"the object's matches"}
+    if files is None:
+        names = ["object", "background", "candidates"]
+        names += ["covariances"] if made["segmentation"]["covariances"] else []
+        files = {f"{n}.npz": f"the {n}".encode() for n in names}
     (out / "matches").mkdir(parents=True)
     for name, data in files.items():
         (out / "matches" / name).write_bytes(data)
@@ -464,6 +467,13 @@ def stage_from_model_with_a_matches_file_missing(t):
     pair = _pair(t)
     _matches_record(t, t / "o")
     (t / "o" / "matches" / "object.npz").unlink()
+    return _args(*pair, t / "o", "--from", "model")
+
+
+@case("are incomplete", "the record does not name the stage's files", "--from matches")
+def stage_from_model_with_a_record_of_too_few_files(t):
+    pair = _pair(t)
+    _matches_record(t, t / "o", files={"object.npz": b"the object"})
     return _args(*pair, t / "o", "--from", "model")
 
 
