@@ -171,3 +171,25 @@ def test_the_python_call_stops_with_none_and_needs_an_output_folder(rendered):
         reconstruct(rendered["a"].folder, rendered["b"].folder, from_stage="matches")
     with pytest.raises(InputError, match="no such stage"):
         reconstruct(rendered["a"].folder, rendered["b"].folder, from_stage="dense")
+
+
+def test_matches_without_covariances_are_the_same_matches(reconstruction_poses, tmp_path):
+    """segmentation.covariances off: the matches stage writes the same matches, background
+    matches and candidates, no covariances.npz, and reads back None for them."""
+    from artrecon.configuration import load_configuration
+    from artrecon.settings import ReconstructConfig, with_settings
+    from artrecon.workers import single_threaded
+
+    _, whole = reconstruction_poses
+    confs = {c: load_configuration(whole / c) for c in ("a", "b")}
+    config = with_settings(ReconstructConfig(), {"segmentation.covariances": 0})
+    with single_threaded():
+        found = matches_stage.match_stage(confs, tmp_path / "matches", config, seed=0)
+    assert found.covariances is None and found.record["covariances"] is False
+    assert found.record["settings"]["segmentation"] == {"covariances": False}
+    assert sorted(p.name for p in (tmp_path / "matches").iterdir()) == [
+        "background.npz", "candidates.npz", "matches.json", "object.npz"]
+    for name in ("object.npz", "background.npz", "candidates.npz"):
+        assert (tmp_path / "matches" / name).read_bytes() == \
+            (whole / "matches" / name).read_bytes(), name
+    assert matches_stage.load_matches(whole / "matches").covariances is not None
