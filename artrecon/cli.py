@@ -8,8 +8,10 @@ is too weak: artrecon.errors.WeakEvidenceError), 130 when interrupted; the messa
 try, without a traceback.
 
 ``reconstruct --to configurations`` stops after the per-configuration stage (``DIR/a``,
-``DIR/b``) and prints the command that continues it (``--from model``, the same inputs and
-options); see artrecon.reconstruct.STAGES.
+``DIR/b``), ``--to matches`` after the matching (``DIR/matches/`` too); each prints the command
+that continues the run (``--from`` the next stage, the same inputs and options). ``--from
+model`` re-runs links and joints (with other segmentation, joint ... settings if wanted) on the
+matches of an earlier run; see artrecon.reconstruct.STAGES.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ def _parser() -> argparse.ArgumentParser:
                    "folder with images/ and cameras.json)")
     r.add_argument("dir_b", help="images of configuration B")
     r.add_argument("--out", required=True, help="output folder (model.json, links/*.ply, "
-                   "a/sparse/0, b/sparse/0)")
+                   "matches.npz, matches/, a/sparse/0, b/sparse/0 ...)")
     r.add_argument("--intrinsics", default=None, help="known pinhole intrinsics 'fx,fy,cx,cy' "
                    "(pixels) or a JSON file with 'K'; default: a folder's cameras.json, else "
                    "estimated by SfM")
@@ -52,17 +54,23 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     r.add_argument("--overwrite", action="store_true", help="replace an existing output folder "
                    "(only a previous result: a folder holding model.json or the configurations "
-                   "of --to configurations); with --from model: replace its model, keep its "
-                   "configurations")
-    r.add_argument("--from", dest="from_stage", default="configurations",
-                   metavar="{configurations,model}",
-                   help="first stage to run: 'configurations' (default: from the images) or "
-                   "'model' (start from OUT/a and OUT/b of an earlier run of the same images, "
-                   "options and seed, e.g. one stopped with --to configurations; they are "
-                   "checked, not recomputed)")
-    r.add_argument("--to", dest="to_stage", default="model", metavar="{configurations,model}",
-                   help="last stage to run: 'model' (default) or 'configurations' (stop after "
-                   "each configuration's SfM, dense points and object region: OUT/a, OUT/b)")
+                   "of --to configurations or --to matches); with --from: replace what the "
+                   "run writes (--from matches: the matches and model; --from model: the "
+                   "model), keep the stages before it")
+    stages = "{" + ",".join(STAGES) + "}"
+    r.add_argument("--from", dest="from_stage", default="configurations", metavar=stages,
+                   help="first stage to run: 'configurations' (default: from the images), "
+                   "'matches' (start from OUT/a and OUT/b of an earlier run of the same images, "
+                   "options and seed, e.g. one stopped with --to configurations) or 'model' "
+                   "(start from OUT/a, OUT/b and OUT/matches/ of an earlier run of the same "
+                   "images and seed, the same sfm.*, dense.*, region.*, match.* settings and "
+                   "segmentation.covariances; the other settings (segmentation.*, joints.* "
+                   "...) may differ). What a run starts from is "
+                   "checked, never recomputed")
+    r.add_argument("--to", dest="to_stage", default="model", metavar=stages,
+                   help="last stage to run: 'model' (default), 'matches' (stop after matching "
+                   "A x B: OUT/a, OUT/b, OUT/matches/) or 'configurations' (stop after each "
+                   "configuration's SfM, dense points and object region: OUT/a, OUT/b)")
     r.add_argument("--quiet", action="store_true", help="no progress bars, warnings only")
     r.set_defaults(handler=_run_reconstruct)
     add_export_parser(sub)
@@ -99,9 +107,12 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
         print(f"artrecon: interrupted; {args.out} is as it was (run again to start over)",
               file=sys.stderr)
         return 130
-    if model is None:  # stopped after the configurations
-        print(f"wrote {args.out}/a and {args.out}/b: the cameras, dense points and object "
-              "region of each configuration (stage 'configurations'); continue with:\n  "
+    if model is None:  # stopped after the configurations or the matches
+        wrote = {"configurations": f"wrote {args.out}/a and {args.out}/b: the cameras, dense "
+                 "points and object region of each configuration",
+                 "matches": f"wrote {args.out}/a, {args.out}/b and {args.out}/matches: the "
+                 "configurations and the matches across them"}[args.to_stage]
+        print(f"{wrote} (stage {args.to_stage!r}); continue with:\n  "
               + _continue_command(args))
         return 0
     print(f"wrote {args.out}: {len(model.links)} links, {len(model.joints)} joints")

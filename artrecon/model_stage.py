@@ -1,8 +1,12 @@
-"""The model stage: the two configurations in, the articulated model out.
+"""The model stage: the two configurations and their matches in, the articulated model out.
 
 Input: what :mod:`artrecon.configuration` left for each configuration (its SfM model, dense
-points, object region). Output, written into the run's work folder (which
-:func:`artrecon.reconstruct.reconstruct` publishes whole as ``OUT``)::
+points, occluders) and what :mod:`artrecon.matches_stage` left in ``OUT/matches/``, read back
+(the object's and the background's 3D-3D matches, the guided matching's candidates, the
+triangulation covariances; :func:`artrecon.matches_stage.load_matches`): a whole run and a run
+continued from the matches (``--from model``) start from the same files. Output, written into
+the run's work folder (which :func:`artrecon.reconstruct.reconstruct` publishes whole as
+``OUT``)::
 
     matches.npz          the 3D-3D matches the links were fitted to (points_a, points_b,
                          point3D_ids_a, point3D_ids_b, votes, labels; the guided matches
@@ -11,16 +15,17 @@ points, object region). Output, written into the run's work folder (which
 
 and the :class:`artrecon.model.ArticulatedModel` it returns (saved as ``model.json``).
 
-Steps: SIFT matches across the configurations lifted to 3D-3D pairs (:mod:`artrecon.features`),
-the object's and the background's told apart by the object regions, the candidates for the
-guided matching and the points' triangulation covariances (:mod:`artrecon.uncertainty`); then
-:func:`artrecon.articulation.articulate`, and the model with its metadata.
+Steps: :func:`artrecon.articulation.articulate` (links, base, dense labels, kinematic tree,
+joints, their evidence), then the model with its metadata. Of the settings, this stage reads
+the segmentation's, guided matching's, joints', assignment's, free space's and confidence's,
+which may differ from the run that matched (``segmentation.covariances`` excepted: whether the
+covariances were computed is the matches stage's), and some of the configurations' (sfm,
+region), which their records fix.
 """
 
 from __future__ import annotations
 
 import logging
-import time
 from dataclasses import asdict
 from pathlib import Path
 
@@ -31,25 +36,19 @@ from artrecon._version import __version__
 from artrecon.articulation import articulate
 from artrecon.assign import views_from_sfm
 from artrecon.errors import DegenerateError, ReconstructionError, WeakEvidenceError
-from artrecon.features import (
-    PointDescriptors,
-    match_configurations,
-    point_descriptors,
-    tracked_features,
-)
 from artrecon.files import write_ply
 from artrecon.joints import KinematicTree
+from artrecon.matches_stage import Matching
 from artrecon.model import ArticulatedModel
 from artrecon.settings import ReconstructConfig, jsonable
 from artrecon.sfm import SfMConfig, camera_summary
-from artrecon.uncertainty import MatchCovariances, point_covariances
 
 log = logging.getLogger(__name__)
 
 
 def build_model(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work: Path, seed: int,
                 config: ReconstructConfig, sfms: dict, denses: dict, occluders: dict,
-                regions: dict, backgrounds: dict, timings: dict) -> ArticulatedModel:
+                found: Matching, timings: dict) -> ArticulatedModel:
     """The model stage, from the two configurations on (the caller runs it with one BLAS and
     OpenCV thread per task, A's and B's own work side by side).
 
@@ -64,44 +63,23 @@ def build_model(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work: Path, seed
         The folder to write ``matches.npz`` and ``links/`` into (the caller saves the model).
     seed : int
     config : ReconstructConfig
-    sfms, denses, occluders, regions, backgrounds : dict
+    sfms, denses, occluders : dict
         Per configuration (``"a"``, ``"b"``), from its
-        :class:`artrecon.configuration.Configuration`: the SfM result, dense points, occluders,
-        SfM point ids on the object and of the background sample.
+        :class:`artrecon.configuration.Configuration`: the SfM result, dense points, occluders.
+    found : artrecon.matches_stage.Matching
+        The matches stage's folder, read back (:func:`artrecon.matches_stage.load_matches`):
+        the object's and the background's matches, the guided matching's candidates and the
+        covariances (None when ``config.segmentation.covariances`` was off for the matching).
     timings : dict
-        Seconds per step so far; this stage's are added.
+        Seconds per step so far; the matching's (from the matches' record) and this stage's
+        are added.
 
     Returns
     -------
     ArticulatedModel
     """
-    t = time.perf_counter()
-    feats = {k: tracked_features(sfms[k], regions[k] | backgrounds[k]) for k in ("a", "b")}
-    matches = match_configurations(sfms["a"], sfms["b"], config.match, seed,
-                                   features=(feats["a"], feats["b"]))
-    in_a = np.isin(matches.point3D_ids_a, list(regions["a"]))
-    in_b = np.isin(matches.point3D_ids_b, list(regions["b"]))
-    background = matches.subset(~in_a & ~in_b)
-    matches = matches.subset(in_a & in_b)
-    # the object's points the matching left out, for the guided matching
-    candidates = []
-    for key, matched in (("a", matches.point3D_ids_a), ("b", matches.point3D_ids_b)):
-        desc = point_descriptors(sfms[key], feats[key])
-        keep = np.isin(desc.ids, list(regions[key])) & ~np.isin(desc.ids, matched)
-        candidates.append(PointDescriptors(desc.ids[keep], desc.xyz[keep], desc.desc[keep]))
-    # how precisely each point is known (its track's views), for the links' motions
-    covariances = None
-    if config.segmentation.covariances:
-        cov = {}
-        for key in ("a", "b"):
-            rec = sfms[key].reconstruction
-            ids_m = matches.point3D_ids_a if key == "a" else matches.point3D_ids_b
-            ids_g = background.point3D_ids_a if key == "a" else background.point3D_ids_b
-            ids_c = candidates[0 if key == "a" else 1].ids
-            cov[key] = [point_covariances(rec, ids) for ids in (ids_m, ids_g, ids_c)]
-        covariances = MatchCovariances(cov["a"][0], cov["b"][0], cov["a"][1], cov["b"][1],
-                                       cov["a"][2], cov["b"][2])
-    timings["match"] = time.perf_counter() - t
+    matches, background = found.matches, found.background
+    timings["match"] = found.record["timings"]["match"]
     views_a, views_b = workers.side_by_side(lambda: views_from_sfm(sfms["a"]),
                                             lambda: views_from_sfm(sfms["b"]))
     try:
@@ -109,7 +87,7 @@ def build_model(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work: Path, seed
                          background.points_b, denses["a"], denses["b"], config, seed,
                          views_a=views_a, views_b=views_b,
                          occluders_a=occluders["a"], occluders_b=occluders["b"],
-                         candidates=tuple(candidates), covariances=covariances)
+                         candidates=found.candidates, covariances=found.covariances)
     except (DegenerateError, WeakEvidenceError) as exc:
         # slightly wrong given poses show up as matches that do not move together
         raise blame_poses(exc, sfms, config.sfm) from exc

@@ -8,9 +8,11 @@ Stages (each its own module, plain data between them)::
 
 Where they live: this module is the entry (:func:`reconstruct`: the inputs checked, the output
 folder, which stages run); :mod:`artrecon.configuration` is the per-configuration stage (SfM,
-dense points, object region); :mod:`artrecon.model_stage` the model stage (matching A x B, the
-model and its files), which calls :func:`artrecon.articulation.articulate` for every step after
-matching (the links' motions: :mod:`artrecon.link_motions`). The settings of every stage are one
+dense points, object region); :mod:`artrecon.matches_stage` the matches stage (matching A x B
+lifted to 3D-3D pairs, the background's, the guided matching's candidates, the covariances);
+:mod:`artrecon.model_stage` the model stage (the model and its files), which calls
+:func:`artrecon.articulation.articulate` for every step after matching (the links' motions:
+:mod:`artrecon.link_motions`). The settings of every stage are one
 :class:`artrecon.settings.ReconstructConfig`.
 
 The model frame is configuration A's SfM frame: arbitrary scale and placement when the
@@ -35,27 +37,43 @@ Output folder (written whole or not at all: built in a temporary sibling folder,
     OUT/a/dense.ply, OUT/b/dense.ply  the object's dense points of each configuration (own frame)
     OUT/a/configuration.json, ...     the per-configuration stage's record and its other files
                                       (the folder contract of artrecon.configuration)
-    OUT/matches.npz                   the 3D-3D matches (points_a, points_b, ids, votes, labels,
-                                      background_a, background_b)
+    OUT/matches/                      the matches stage's folder: the matches as matched, the
+                                      background's, the guided matching's candidates, the
+                                      covariances, the record matches.json (the folder
+                                      contract of artrecon.matches_stage)
+    OUT/matches.npz                   the 3D-3D matches the links were fitted to (points_a,
+                                      points_b, ids, votes, labels; the guided ones appended),
+                                      background_a, background_b
 
 Running part of it (:data:`STAGES`; ``from_stage``/``to_stage``, the command's ``--from`` and
-``--to``). The folder holds the result of two stages, and a run may stop after the first or
-start at the second::
+``--to``). The folder holds the result of three stages; a run may stop after any of them and
+start at any of them::
 
     configurations   images -> OUT/a, OUT/b (each: SfM, dense points, object region; written
                      side by side, the record configuration.json last)
-    model            OUT/a, OUT/b -> OUT/matches.npz, OUT/links/, OUT/model.json
+    matches          OUT/a, OUT/b -> OUT/matches/ (the record matches.json last)
+    model            OUT/a, OUT/b, OUT/matches/ -> OUT/matches.npz, OUT/links/, OUT/model.json
 
-``to_stage="configurations"`` publishes a folder holding OUT/a and OUT/b only.
-``from_stage="model"`` starts from such a folder (or a whole result, with ``overwrite``): each
-configuration's record must name the same images, intrinsics, poses, settings, seed and artrecon
-version as this run (else InputError naming what differs; they are never recomputed quietly),
-and the folder is published again whole, the configurations copied and the model added. The
-model is the one the whole run gives, bit for bit (tests/test_stages.py): the whole run reads
-configuration B back from its folder too, and A's folder holds what A's stage returned
-(artrecon.configuration). Nothing finer is a
-stage: a configuration's SfM and dense points share one record, so a folder whose dense stage
-failed holds no result a later run could check.
+``to_stage="configurations"`` publishes a folder holding OUT/a and OUT/b only,
+``to_stage="matches"`` one holding OUT/matches/ too. A later start takes such a folder (or a
+whole result, with ``overwrite``) and checks what it starts from against this run, never
+recomputing it quietly (InputError naming what differs and which stage to start from instead):
+each configuration's record must name the same images, intrinsics, poses, settings (sfm, dense,
+region), seed and artrecon version as this run (``from_stage="matches"`` or ``"model"``), and
+the matches' record (``from_stage="model"``) the same configurations (their records' digests),
+match settings (:func:`artrecon.matches_stage.match_settings`: ``match.*`` and
+``segmentation.covariances``), seed and version, with its files whole. The settings of the
+model stage (segmentation, guided matching, joints, assignment ...) may differ: re-running the
+links and joints with other settings does not match again. The folder is published again
+whole, the stages before ``from_stage`` copied and the later ones added.
+
+The continued run's model is the one the whole run gives, bit for bit (tests/test_stages.py):
+the whole run reads configuration B back from its folder too (A's folder holds what A's stage
+returned, artrecon.configuration), and its model stage reads the matches back from OUT/matches/
+as a run ``from_stage="model"`` does. Nothing finer is a stage: a configuration's SfM and dense
+points share one record, so a folder whose dense stage failed holds no result a later run could
+check; the links, joints and dense labels are one stage (:func:`artrecon.articulation.articulate`
+runs them in order).
 """
 
 from __future__ import annotations
@@ -90,6 +108,7 @@ from artrecon.io import (
     load_image_folder,
     parse_intrinsics,
 )
+from artrecon.matches_stage import check_matches, load_matches, match_stage
 from artrecon.model import ArticulatedModel
 from artrecon.model_stage import build_model
 from artrecon.settings import ReconstructConfig, with_settings
@@ -103,18 +122,21 @@ __all__ = ["STAGES", "ReconstructConfig", "prepare_configuration", "reconstruct"
 
 #: The stages a run can start at or stop after (:func:`reconstruct`'s ``from_stage`` and
 #: ``to_stage``, the command's ``--from`` and ``--to``), in order, with what each leaves in the
-#: output folder for the next. Only these two: the output folder keeps nothing finer that a
+#: output folder for the next. Only these three: the output folder keeps nothing finer that a
 #: later run could check and start from (a configuration's SfM and dense points are one record,
-#: :mod:`artrecon.configuration`; matches, links and joints are saved together).
+#: :mod:`artrecon.configuration`; links, joints and dense labels are saved together).
 STAGES = {
     "configurations": "OUT/a and OUT/b: each configuration's cameras (SfM), dense points and "
                       "object region",
-    "model": "OUT/matches.npz, OUT/links/, OUT/model.json: matches across A and B, links, "
-             "joints",
+    "matches": "OUT/matches/: the 3D-3D matches across A and B, the background matches, the "
+               "guided matching's candidates and the covariances",
+    "model": "OUT/matches.npz, OUT/links/, OUT/model.json: links, joints",
 }
 #: Files that tell a folder written by :func:`reconstruct` (whole, or stopped after the
-#: configurations) from any other folder.
+#: configurations or the matches) from any other folder.
 OUTPUT_MARKERS = ("model.json", "a/configuration.json", "b/configuration.json")
+#: The matches stage's record in the output folder (:mod:`artrecon.matches_stage`).
+MATCHES_RECORD = "matches/matches.json"
 
 
 
@@ -151,9 +173,12 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
     """Articulated model of an object from two image sets, one per configuration.
 
     The whole run by default; ``from_stage`` and ``to_stage`` run part of it (:data:`STAGES`):
-    ``to_stage="configurations"`` writes ``out_dir/a`` and ``out_dir/b`` and stops, and
-    ``from_stage="model"`` starts from those of an existing ``out_dir`` and adds the model to
-    it. The two halves give the model the whole run gives (same inputs, settings and seed).
+    ``to_stage="configurations"`` writes ``out_dir/a`` and ``out_dir/b`` and stops,
+    ``to_stage="matches"`` adds ``out_dir/matches`` and stops; ``from_stage="matches"`` starts
+    from the configurations of an existing ``out_dir``, ``from_stage="model"`` from its
+    configurations and matches (with, if wanted, other settings of the model stage:
+    segmentation, joints ...). The parts give the model the whole run gives (same inputs,
+    settings and seed).
 
     Parameters
     ----------
@@ -172,8 +197,9 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
     config : ReconstructConfig
     overwrite : bool
         Replace an existing ``out_dir`` (only a folder this function wrote: one holding
-        ``model.json`` or the configurations' records). With ``from_stage="model"``: replace the
-        model of an ``out_dir`` that holds one (its configurations are kept).
+        ``model.json`` or the configurations' records). With a later ``from_stage``: replace
+        what the run writes in an ``out_dir`` that holds it already (``"matches"``: its matches
+        and model; ``"model"``: its model); the stages before ``from_stage`` are kept.
     progress : bool
         tqdm bars on stderr.
     jobs : int
@@ -182,24 +208,27 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
     configurations : (folder_a, folder_b), optional
         Folders of finished per-configuration stages of these image sets (e.g. written by the
         harness while it captured): reused when their records name the same inputs and
-        settings, recomputed otherwise. Not with ``from_stage="model"``.
-    from_stage, to_stage : {"configurations", "model"}
-        The first and the last stage to run (:data:`STAGES`). ``from_stage="model"`` needs the
-        ``out_dir`` of an earlier run of these inputs, settings and seed (stopped after the
-        configurations, or whole); their records are checked, never recomputed.
+        settings, recomputed otherwise. Only with ``from_stage="configurations"``.
+    from_stage, to_stage : {"configurations", "matches", "model"}
+        The first and the last stage to run (:data:`STAGES`). A later ``from_stage`` needs the
+        ``out_dir`` of an earlier run of these inputs and seed (stopped after the stage before
+        it, or later, or whole): ``"matches"`` its configurations (of these settings),
+        ``"model"`` its configurations and matches (of these configuration and match settings;
+        the model stage's may differ); their records are checked, never recomputed.
 
     Returns
     -------
     ArticulatedModel or None
         Links with dense oriented points (model frame = configuration A's SfM frame), joints;
-        None when the run stops after the configurations.
+        None when the run stops after the configurations or the matches.
 
     Raises
     ------
     InputError
         Bad folders, images or camera files; an unknown stage, ``from_stage`` after
-        ``to_stage``, or (``from_stage="model"``) an ``out_dir`` without finished
-        configurations of these inputs and settings (the message says what differs).
+        ``to_stage``, or (a later ``from_stage``) an ``out_dir`` without finished
+        configurations (or, ``"model"``, matches) of these inputs and settings (the message
+        says what differs).
     ReconstructionError, DegenerateError
         A stage failed (the message says which and what to try). WeakEvidenceError (a
         ReconstructionError): a joint's evidence is too weak to give its axis
@@ -231,23 +260,29 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
         out_dir = _check_output(out_dir, [set_a.root, set_a.image_dir, set_b.root,
                                           set_b.image_dir], overwrite, from_stage,
                                 example=set_a.root.parent / "model")
+    matches = None
     if first > 0:  # the configurations of out_dir, exactly as this run would compute them
         settings = stage_settings(config.sfm, config.dense, config.region)
         restart = ("start from the configurations instead (without --from, "
                    "from_stage='configurations'), which recomputes them")
-        for key, iset, intr, known in (("a", set_a, intr_a, poses_a),
-                                       ("b", set_b, intr_b, poses_b)):
-            check_reusable(out_dir / key, iset, intr, known, settings, seed,
-                           which=key.upper(), restart=restart)
+        records = {key: check_reusable(out_dir / key, iset, intr, known, settings, seed,
+                                       which=key.upper(), restart=restart)
+                   for key, iset, intr, known in (("a", set_a, intr_a, poses_a),
+                                                  ("b", set_b, intr_b, poses_b))}
         configurations = (out_dir / "a", out_dir / "b")
+        if first > 1:  # and its matches, made from them with this run's matching settings
+            check_matches(out_dir / "matches",
+                          {k: r["inputs_digest"] for k, r in records.items()}, config, seed,
+                          restart="start from the matches instead (--from matches, "
+                          "from_stage='matches'), which recomputes them from OUT/a and OUT/b")
+            matches = out_dir / "matches"
     if out_dir is not None:
         work = make_work_dir(out_dir)  # also removes those of interrupted runs
     else:
         work = Path(tempfile.mkdtemp(prefix="artrecon-"))
     try:
         model = _run(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work, seed, config,
-                     progress, jobs, configurations, reuse_only=first > 0,
-                     stop_after_configurations=last == 0)
+                     progress, jobs, configurations, matches, first=first, last=last)
         if model is not None:
             model.metadata["timings"]["total"] = time.perf_counter() - t_all
         if out_dir is not None:
@@ -279,28 +314,38 @@ def _stage_range(from_stage: str, to_stage: str) -> tuple[int, int]:
 def _check_output(out_dir, inputs, overwrite: bool, from_stage: str, example) -> Path:
     """The output folder of a run from ``from_stage``: a new folder (or, with ``overwrite``, an
     earlier result) for a run from the start; for a later start, an existing folder of an
-    earlier run, holding no model unless ``overwrite`` (its configurations are checked by the
-    caller, against this run's inputs)."""
+    earlier run, holding nothing this run would write (the matches, from ``"matches"``; a
+    model) unless ``overwrite`` (what it starts from is checked by the caller, against this
+    run's inputs)."""
     out_dir = Path(out_dir)
     check_output_path(out_dir, inputs, example=example)
     holds_model = (out_dir / "model.json").exists()
+    holds_matches = (out_dir / MATCHES_RECORD).exists()
     if from_stage == "configurations":
         if (out_dir.is_dir() and not overwrite and not holds_model
                 and (out_dir / "a" / "configuration.json").is_file()):
-            raise InputError(f"output folder {out_dir} exists and holds the configurations of a "
-                             "run stopped after them (--to configurations): continue it with "
-                             "--from model, or pass --overwrite to start it over")
+            stopped, next_stage = (("the configurations and matches of a run stopped after "
+                                    "them (--to matches)", "model") if holds_matches else
+                                   ("the configurations of a run stopped after them "
+                                    "(--to configurations)", "matches"))
+            raise InputError(f"output folder {out_dir} exists and holds {stopped}: continue "
+                             f"it with --from {next_stage}, or pass --overwrite to start it "
+                             "over")
         return check_output_dir(out_dir, inputs, overwrite=overwrite, marker=OUTPUT_MARKERS,
                                 example=example)
     if out_dir.is_symlink() or not out_dir.is_dir():
         raise InputError(f"--from {from_stage}: {out_dir} is not a folder; --out must name the "
                          "output folder of an earlier run of these images (whole, or stopped "
-                         "with --to configurations): run without --from to start from the "
-                         "beginning")
+                         "with --to configurations or --to matches): run without --from to "
+                         "start from the beginning")
     if holds_model and not overwrite:
         raise InputError(f"--from {from_stage}: {out_dir} holds a model already (model.json); "
-                         "pass --overwrite to replace it (its configurations are kept), or "
-                         "choose another --out")
+                         "pass --overwrite to replace it (the stages before "
+                         f"{from_stage} are kept), or choose another --out")
+    if from_stage == "matches" and holds_matches and not overwrite:
+        raise InputError(f"--from matches: {out_dir} holds matches already ({MATCHES_RECORD}): "
+                         "continue with --from model, or pass --overwrite to match again "
+                         "(its configurations are kept)")
     return out_dir
 
 
@@ -333,11 +378,14 @@ def _configuration_in_process(*args) -> None:
 
 def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, poses_a, poses_b,
          work: Path, seed: int, config: ReconstructConfig, progress: bool, jobs: int = 2,
-         configurations: tuple | None = None, reuse_only: bool = False,
-         stop_after_configurations: bool = False) -> ArticulatedModel | None:
-    """The stages into ``work``: the configurations (computed, or reused from copies of
-    ``configurations``; only read back when ``reuse_only``, the caller having checked them),
-    then, unless ``stop_after_configurations``, the model (returned)."""
+         configurations: tuple | None = None, matches: Path | None = None, first: int = 0,
+         last: int = len(STAGES) - 1) -> ArticulatedModel | None:
+    """The stages ``first`` to ``last`` (indices in :data:`STAGES`) into ``work``: the
+    configurations (computed, or reused from copies of ``configurations``; only read back when
+    ``first > 0``, the caller having checked them), the matches (computed into ``work/matches``,
+    or, when ``first > 1``, a copy of ``matches``, which the caller checked), then the model
+    (returned; None when the run stops earlier). The model stage reads the matches back from
+    ``work/matches`` either way."""
     timings: dict[str, float] = {}
     folders = {"a": work / "a", "b": work / "b"}
     if configurations is not None:  # finished per-configuration folders: start from copies
@@ -347,7 +395,7 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     args = {"a": (set_a, folders["a"], intr_a, poses_a, config, seed, "A"),
             "b": (set_b, folders["b"], intr_b, poses_b, config, seed, "B")}
     confs: dict[str, Configuration] = {}
-    if reuse_only:
+    if first > 0:
         confs = {key: load_configuration(folder) for key, folder in folders.items()}
     elif jobs > 1:
         # B in a second (spawned) process while this one does A: the two are independent
@@ -360,22 +408,27 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
             except KeyboardInterrupt:
                 workers.stop(pool)
                 raise
-        if stop_after_configurations:
+        if last == 0:
             return None
         confs["b"] = load_configuration(folders["b"])
     else:
         for key in ("a", "b"):
             confs[key] = _configuration(*args[key], progress)
-    if stop_after_configurations:
+    if last == 0:
         return None
     for key, conf in confs.items():
         timings[f"sfm_{key}"] = conf.record["timings"]["sfm"]
         timings[f"dense_{key}"] = conf.record["timings"]["dense"]
-    sfms = {k: c.sfm for k, c in confs.items()}
-    denses = {k: c.dense for k, c in confs.items()}
-    occluders = {k: c.occluders for k, c in confs.items()}
-    regions = {k: c.object_ids for k, c in confs.items()}
-    backgrounds = {k: c.background_ids for k, c in confs.items()}
     with workers.single_threaded():
+        if first > 1:
+            shutil.copytree(matches, work / "matches", symlinks=True)
+            found = load_matches(work / "matches")
+        else:  # written, then read back: the model is the one a run from the folder gives
+            found = match_stage(confs, work / "matches", config, seed)
+        if last == 1:
+            return None
+        sfms = {k: c.sfm for k, c in confs.items()}
+        denses = {k: c.dense for k, c in confs.items()}
+        occluders = {k: c.occluders for k, c in confs.items()}
         return build_model(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work, seed, config,
-                           sfms, denses, occluders, regions, backgrounds, timings)
+                           sfms, denses, occluders, found, timings)

@@ -299,7 +299,8 @@ def out_under_a_file(t):
 
 
 # running part of the run (--from / --to, artrecon.reconstruct.STAGES)
-@case("--from sfm", "no such stage", "configurations (writes", "model (writes")
+@case("--from sfm", "no such stage", "configurations (writes", "matches (writes",
+      "model (writes")
 def stage_unknown(t):
     return _args(*_pair(t), t / "o", "--from", "sfm")
 
@@ -314,9 +315,24 @@ def stage_from_after_to(t):
     return _args(*_pair(t), t / "o", "--from", "model", "--to", "configurations")
 
 
+@case("--from matches comes after --to configurations", "nothing to run")
+def stage_from_matches_after_to_configurations(t):
+    return _args(*_pair(t), t / "o", "--from", "matches", "--to", "configurations")
+
+
+@case("--from model comes after --to matches", "nothing to run")
+def stage_from_model_after_to_matches(t):
+    return _args(*_pair(t), t / "o", "--from", "model", "--to", "matches")
+
+
 @case("--from model", "is not a folder", "without --from")
 def stage_from_model_without_a_folder(t):
     return _args(*_pair(t), t / "o", "--from", "model")
+
+
+@case("--from matches", "is not a folder", "--to matches", "without --from")
+def stage_from_matches_without_a_folder(t):
+    return _args(*_pair(t), t / "o", "--from", "matches")
 
 
 @case("configuration A", "no configuration.json", "without --from")
@@ -325,9 +341,10 @@ def stage_from_model_without_configurations(t):
     return _args(*_pair(t), t / "o", "--from", "model")
 
 
-def _configuration_records(t: Path, out: Path, **changes) -> None:
+def _configuration_records(t: Path, out: Path, digests: dict | None = None, **changes) -> None:
     """Records of finished configurations in ``out/a`` and ``out/b`` (the rest of their folders
-    absent: the check reads only the record), made with ``changes``."""
+    absent: the check reads only the record), made with ``changes`` (``digests``: the
+    ``inputs_digest`` of each, default one that matches no inputs)."""
     from artrecon import __version__
     from artrecon.configuration import FORMAT, stage_settings
 
@@ -336,6 +353,8 @@ def _configuration_records(t: Path, out: Path, **changes) -> None:
                   "seed": 0, "cameras": "SfM from the images", "num_images": 6,
                   "image_dir": str((t / c).absolute()),
                   "settings": json.loads(json.dumps(stage_settings())), **changes}
+        if digests is not None:
+            record["inputs_digest"] = digests[c]
         (out / c).mkdir(parents=True)
         (out / c / "configuration.json").write_text(json.dumps(record))
 
@@ -363,10 +382,121 @@ def stage_from_model_over_a_model(t):
     return _args(*pair, t / "o", "--from", "model")
 
 
-@case("holds the configurations", "--from model", "--overwrite")
+@case("holds the configurations of a run stopped after them", "--to configurations",
+      "--from matches", "--overwrite")
 def stage_from_the_start_over_configurations(t):
     pair = _pair(t)
     _configuration_records(t, t / "o")
+    return _args(*pair, t / "o")
+
+
+def _finished_configurations(t: Path, out: Path) -> dict:
+    """Records of finished configurations of the images ``t/a`` and ``t/b`` (default settings,
+    seed 0) in ``out/a`` and ``out/b``, which the check of ``--from matches`` and ``--from
+    model`` accepts (written once); returns their ``inputs_digest`` per configuration."""
+    from artrecon.configuration import inputs_digest, stage_settings
+
+    digests = {c: inputs_digest(io.load_image_folder(t / c), None, None, stage_settings(), 0)
+               for c in ("a", "b")}
+    if not (out / "a").exists():
+        _configuration_records(t, out, digests=digests)
+    return digests
+
+
+def _matches_record(t: Path, out: Path, configurations: dict | None = None,
+                    files: dict | None = None, **settings) -> None:
+    """The matches stage's record in ``out/matches`` (its files: ``files``, name -> bytes;
+    default a stand-in for each) as a run with the default settings changed by ``settings``
+    (``stage.field``: value) and these configurations (default: those of
+    :func:`_finished_configurations`) writes it."""
+    import hashlib
+
+    from artrecon import __version__
+    from artrecon.matches_stage import FORMAT, match_settings, matches_digest
+    from artrecon.settings import ReconstructConfig, with_settings
+
+    configurations = configurations or _finished_configurations(t, out)
+    made = match_settings(with_settings(ReconstructConfig(), settings))
+    if files is None:
+        names = ["object", "background", "candidates"]
+        names += ["covariances"] if made["segmentation"]["covariances"] else []
+        files = {f"{n}.npz": f"the {n}".encode() for n in names}
+    (out / "matches").mkdir(parents=True)
+    for name, data in files.items():
+        (out / "matches" / name).write_bytes(data)
+    record = {"format": FORMAT, "inputs_digest": matches_digest(configurations, made, 0),
+              "configurations": configurations, "settings": made, "seed": 0,
+              "artrecon_version": __version__,
+              "files": {n: hashlib.sha256(d).hexdigest() for n, d in files.items()},
+              "covariances": made["segmentation"]["covariances"], "timings": {"match": 1.0}}
+    (out / "matches" / "matches.json").write_text(json.dumps(record))
+
+
+@case("holds no finished matches stage", "no matches.json", "--from matches")
+def stage_from_model_without_matches(t):
+    pair = _pair(t)
+    _finished_configurations(t, t / "o")
+    return _args(*pair, t / "o", "--from", "model")
+
+
+@case("the matches in", "other configurations or settings", "match.ratio: 0.8 there, 0.7 now",
+      "not reused", "--from matches")
+def stage_from_model_with_other_match_settings(t):
+    pair = _pair(t)
+    _matches_record(t, t / "o")
+    return _args(*pair, t / "o", "--from", "model", "--set", "match.ratio=0.7")
+
+
+@case("segmentation.covariances: True there, False now", "--from matches")
+def stage_from_model_without_the_covariances_matched(t):
+    pair = _pair(t)
+    _matches_record(t, t / "o")
+    return _args(*pair, t / "o", "--from", "model", "--set", "segmentation.covariances=0")
+
+
+@case("configuration B is not the one they were matched in", "--from matches")
+def stage_from_model_with_matches_of_other_configurations(t):
+    pair = _pair(t)
+    digests = _finished_configurations(t, t / "o")
+    _matches_record(t, t / "o", configurations={**digests, "b": "0" * 64})
+    return _args(*pair, t / "o", "--from", "model")
+
+
+@case("the matches in", "are incomplete", "object.npz is missing", "--from matches")
+def stage_from_model_with_a_matches_file_missing(t):
+    pair = _pair(t)
+    _matches_record(t, t / "o")
+    (t / "o" / "matches" / "object.npz").unlink()
+    return _args(*pair, t / "o", "--from", "model")
+
+
+@case("are incomplete", "the record does not name the stage's files", "--from matches")
+def stage_from_model_with_a_record_of_too_few_files(t):
+    pair = _pair(t)
+    _matches_record(t, t / "o", files={"object.npz": b"the object"})
+    return _args(*pair, t / "o", "--from", "model")
+
+
+@case("are incomplete", "object.npz is not the file the record names", "--from matches")
+def stage_from_model_with_a_matches_file_changed(t):
+    pair = _pair(t)
+    _matches_record(t, t / "o")
+    (t / "o" / "matches" / "object.npz").write_bytes(b"half of it")
+    return _args(*pair, t / "o", "--from", "model")
+
+
+@case("--from matches", "holds matches already", "--from model", "--overwrite")
+def stage_from_matches_over_matches(t):
+    pair = _pair(t)
+    _matches_record(t, t / "o")
+    return _args(*pair, t / "o", "--from", "matches")
+
+
+@case("holds the configurations and matches of a run stopped after them", "--to matches",
+      "--from model", "--overwrite")
+def stage_from_the_start_over_matches(t):
+    pair = _pair(t)
+    _matches_record(t, t / "o")
     return _args(*pair, t / "o")
 
 

@@ -1,0 +1,314 @@
+"""The matches stage: the two configurations in, everything the model takes from matching out.
+
+Input: what :mod:`artrecon.configuration` left for each configuration (its SfM model with the
+COLMAP database's descriptors, the object region and the background sample). Output: a folder
+(``OUT/matches``), a contract like a configuration's::
+
+    object.npz        the object's 3D-3D matches: points_a, points_b (SfM frames),
+                      point3D_ids_a, point3D_ids_b, votes, colours (of the A point)
+    background.npz    the background matches, the same arrays
+    candidates.npz    the guided matching's candidates (the object's SfM points the matching left
+                      out): ids_a, xyz_a, desc_a, ids_b, xyz_b, desc_b
+                      (artrecon.features.PointDescriptors)
+    covariances.npz   the triangulation covariances of all of these points, row for row
+                      (artrecon.uncertainty.MatchCovariances); only when
+                      ``segmentation.covariances`` is on
+    matches.json      the record, written last: the inputs digests of both configurations, the
+                      settings the matching reads (:func:`match_settings`), seed, artrecon
+                      version, each file's SHA-256, counts and the timing
+
+:func:`match_stage` writes it, :func:`check_matches` refuses one that is not this run's (the
+record names other configurations, settings, seed or version; a file is missing or not the one
+the record names), :func:`load_matches` reads it back. The model stage
+(:mod:`artrecon.model_stage`) always starts from the folder, in a whole run too, so a run
+continued from it (``--from model``) gives the whole run's model bit for bit.
+
+Not to be confused with ``OUT/matches.npz``, which the model stage writes: the matches the links
+were fitted to (the guided ones appended) with their link labels.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import logging
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from artrecon._version import __version__
+from artrecon.errors import InputError, ReconstructionError
+from artrecon.features import (
+    CrossMatches,
+    PointDescriptors,
+    match_configurations,
+    point_descriptors,
+    tracked_features,
+)
+from artrecon.files import read_json, write_bytes_atomic, write_json_atomic
+from artrecon.uncertainty import MatchCovariances, point_covariances
+
+log = logging.getLogger(__name__)
+
+#: Version of the folder contract (``matches.json`` ``format``).
+FORMAT = "artrecon-matches/1"
+#: The record, written last: a folder without it holds no finished stage.
+RECORD = "matches.json"
+_MATCH_FIELDS = ("points_a", "points_b", "point3D_ids_a", "point3D_ids_b", "votes", "colours")
+_COVARIANCE_FIELDS = ("matches_a", "matches_b", "background_a", "background_b", "candidates_a",
+                      "candidates_b")
+
+
+@dataclass
+class Matching:
+    """What the matches stage found (:func:`load_matches`).
+
+    Attributes
+    ----------
+    matches : CrossMatches
+        The object's 3D-3D matches.
+    background : CrossMatches
+        The background's.
+    candidates : (PointDescriptors, PointDescriptors)
+        The object's points of A and B the matching left out, for the guided matching.
+    covariances : MatchCovariances or None
+        Their triangulation covariances (None: ``segmentation.covariances`` off).
+    record : dict
+        ``matches.json``.
+    """
+
+    matches: CrossMatches
+    background: CrossMatches
+    candidates: tuple[PointDescriptors, PointDescriptors]
+    covariances: MatchCovariances | None
+    record: dict = field(default_factory=dict)
+
+
+def match_settings(config) -> dict:
+    """The settings the matches stage reads, as its record holds them (JSON: tuples are
+    lists): all of ``config.match``, and ``segmentation.covariances`` (whether the covariances
+    are computed). The other settings of the later stages (segmentation, guided matching,
+    joints ...) do not change the folder."""
+    return json.loads(json.dumps({"match": asdict(config.match),
+                                  "segmentation": {"covariances":
+                                                   bool(config.segmentation.covariances)}},
+                                 default=str))
+
+
+def matches_digest(configurations: dict, settings: dict, seed: int) -> str:
+    """SHA-256 of everything the stage's result depends on: the configurations (their records'
+    ``inputs_digest``, ``{"a": ..., "b": ...}``), the settings (:func:`match_settings`), the
+    seed and artrecon's version."""
+    return hashlib.sha256(json.dumps({"configurations": configurations, "settings": settings,
+                                      "seed": seed, "version": __version__},
+                                     sort_keys=True).encode()).hexdigest()
+
+
+def _npz_bytes(arrays: dict) -> bytes:
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    return buffer.getvalue()
+
+
+def match_stage(confs: dict, folder: str | Path, config, seed: int) -> Matching:
+    """Match the configurations ``confs`` (``{"a": Configuration, "b": ...}``,
+    :class:`artrecon.configuration.Configuration`) and write the stage's folder (see the module
+    docstring; the record last). Run it with one BLAS and OpenCV thread (the whole run's
+    results are those). Returns what it wrote, as :func:`load_matches` reads it.
+
+    Raises
+    ------
+    ReconstructionError
+        Too few matches (:func:`artrecon.features.match_configurations`).
+    """
+    folder = Path(folder)
+    t = time.perf_counter()
+    sfms = {k: c.sfm for k, c in confs.items()}
+    regions = {k: c.object_ids for k, c in confs.items()}
+    backgrounds = {k: c.background_ids for k, c in confs.items()}
+    feats = {k: tracked_features(sfms[k], regions[k] | backgrounds[k]) for k in ("a", "b")}
+    matches = match_configurations(sfms["a"], sfms["b"], config.match, seed,
+                                   features=(feats["a"], feats["b"]))
+    in_a = np.isin(matches.point3D_ids_a, list(regions["a"]))
+    in_b = np.isin(matches.point3D_ids_b, list(regions["b"]))
+    background = matches.subset(~in_a & ~in_b)
+    matches = matches.subset(in_a & in_b)
+    # the object's points the matching left out, for the guided matching
+    candidates = []
+    for key, matched in (("a", matches.point3D_ids_a), ("b", matches.point3D_ids_b)):
+        desc = point_descriptors(sfms[key], feats[key])
+        keep = np.isin(desc.ids, list(regions[key])) & ~np.isin(desc.ids, matched)
+        candidates.append(PointDescriptors(desc.ids[keep], desc.xyz[keep], desc.desc[keep]))
+    # how precisely each point is known (its track's views), for the links' motions
+    covariances = None
+    if config.segmentation.covariances:
+        cov = {}
+        for key in ("a", "b"):
+            rec = sfms[key].reconstruction
+            ids_m = matches.point3D_ids_a if key == "a" else matches.point3D_ids_b
+            ids_g = background.point3D_ids_a if key == "a" else background.point3D_ids_b
+            ids_c = candidates[0 if key == "a" else 1].ids
+            cov[key] = [point_covariances(rec, ids) for ids in (ids_m, ids_g, ids_c)]
+        covariances = MatchCovariances(cov["a"][0], cov["b"][0], cov["a"][1], cov["b"][1],
+                                       cov["a"][2], cov["b"][2])
+    seconds = time.perf_counter() - t
+    files = {
+        "object.npz": {k: getattr(matches, k) for k in _MATCH_FIELDS},
+        "background.npz": {k: getattr(background, k) for k in _MATCH_FIELDS},
+        "candidates.npz": {f"{name}_{key}": getattr(c, name)
+                           for key, c in zip(("a", "b"), candidates, strict=True)
+                           for name in ("ids", "xyz", "desc")},
+    }
+    if covariances is not None:
+        files["covariances.npz"] = {k: getattr(covariances, k) for k in _COVARIANCE_FIELDS}
+    digests = {}
+    for name, arrays in files.items():
+        data = _npz_bytes(arrays)
+        write_bytes_atomic(folder / name, data)
+        digests[name] = hashlib.sha256(data).hexdigest()
+    settings = match_settings(config)
+    configurations = {k: confs[k].record["inputs_digest"] for k in ("a", "b")}
+    record = {
+        "format": FORMAT, "inputs_digest": matches_digest(configurations, settings, seed),
+        "configurations": configurations, "settings": settings, "seed": seed,
+        "artrecon_version": __version__, "files": digests,
+        "matches": len(matches), "background_matches": len(background),
+        "candidates": {"a": len(candidates[0]), "b": len(candidates[1])},
+        "covariances": covariances is not None, "timings": {"match": seconds},
+    }
+    write_json_atomic(folder / RECORD, record)  # last: a folder without it is incomplete
+    log.info("matches: %d on the object, %d on the background, %d + %d candidates (%.1f s)",
+             len(matches), len(background), len(candidates[0]), len(candidates[1]), seconds)
+    return load_matches(folder)
+
+
+def _file_problems(folder: Path, record: dict) -> list[str]:
+    """The files the record names that are missing or hold other bytes than it names."""
+    files = record.get("files")
+    if not isinstance(files, dict) or not {"object.npz", "background.npz",
+                                           "candidates.npz"} <= set(files):
+        return ["the record does not name the stage's files"]
+    if record.get("covariances") and "covariances.npz" not in files:
+        return ["the record names covariances but no covariances.npz"]
+    out = []
+    for name, digest in sorted(files.items()):
+        path = folder / name
+        if not path.is_file():
+            out.append(f"{name} is missing")
+        elif hashlib.sha256(path.read_bytes()).hexdigest() != digest:
+            out.append(f"{name} is not the file the record names (changed or half-written)")
+    return out
+
+
+def check_matches(folder: str | Path, configurations: dict, config, seed: int, *,
+                  restart: str = "run from the start") -> dict:
+    """Refuse a folder that is not a finished matches stage of exactly these configurations,
+    settings and seed (a run told to start after the stage, ``--from model``, asks here first;
+    nothing is ever recomputed quietly).
+
+    Parameters
+    ----------
+    folder : str or Path
+    configurations : dict
+        ``{"a": inputs_digest, "b": ...}`` of the configurations this run starts from (their
+        records, already checked against this run's inputs).
+    config : ReconstructConfig
+        This run's settings; only :func:`match_settings` of them must agree.
+    seed : int
+    restart : str
+        What the user should do instead, for messages.
+
+    Returns
+    -------
+    dict
+        The folder's record.
+
+    Raises
+    ------
+    InputError
+        No record (no matches stage, or an interrupted one), a record of another format, one
+        made from other configurations, settings, seed or version (the message names what
+        differs), or files missing or changed.
+    """
+    folder = Path(folder)
+    record_path = folder / RECORD
+    if not record_path.is_file():
+        raise InputError(f"{folder} holds no finished matches stage (no {RECORD}; a run "
+                         f"stopped with --to configurations, or interrupted); {restart}")
+    record = read_json(record_path)
+    if not isinstance(record, dict) or record.get("format") != FORMAT:
+        got = record.get("format") if isinstance(record, dict) else None
+        raise InputError(f"{record_path}: format {got!r}, this artrecon reads {FORMAT!r}; "
+                         f"{restart}")
+    settings = match_settings(config)
+    if record.get("inputs_digest") != matches_digest(configurations, settings, seed):
+        differs = "; ".join(_differences(record, configurations, settings, seed))
+        raise InputError(f"the matches in {folder} were made from other configurations or "
+                         f"settings than this run's ({differs}), so they are not reused; "
+                         f"{restart}, or give the settings they were made with")
+    problems = _file_problems(folder, record)
+    if problems:
+        raise InputError(f"the matches in {folder} are incomplete: {'; '.join(problems)}; "
+                         f"{restart}")
+    return record
+
+
+def _differences(record: dict, configurations: dict, settings: dict, seed: int) -> list[str]:
+    """What a record names otherwise than this run (for :func:`check_matches`'s message)."""
+    out = []
+    if record.get("artrecon_version") != __version__:
+        out.append(f"artrecon {record.get('artrecon_version')} made them, this is "
+                   f"{__version__}")
+    if record.get("seed") != seed:
+        out.append(f"seed {record.get('seed')} there, {seed} now")
+    there = record.get("configurations") or {}
+    out += [f"configuration {k.upper()} is not the one they were matched in (its "
+            "configuration.json was written since)"
+            for k in sorted(configurations) if there.get(k) != configurations[k]]
+    recorded = record.get("settings") or {}
+    for stage in sorted(set(settings) | set(recorded)):
+        a, b = recorded.get(stage) or {}, settings.get(stage) or {}
+        out += [f"{stage}.{k}: {a.get(k)!r} there, {b.get(k)!r} now"
+                for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+    return out or ["the record's digest"]
+
+
+def load_matches(folder: str | Path) -> Matching:
+    """Read a folder written by :func:`match_stage` (its files checked against the record).
+
+    Raises
+    ------
+    ReconstructionError
+        The folder is incomplete (no record, a file missing or changed) or of another format.
+    """
+    folder = Path(folder)
+    record_path = folder / RECORD
+    if not record_path.is_file():
+        raise ReconstructionError(f"{folder} holds no finished matches stage (no {RECORD}); "
+                                  "run the reconstruction again")
+    record = read_json(record_path)
+    if record.get("format") != FORMAT:
+        raise ReconstructionError(f"{record_path}: format {record.get('format')!r}, this "
+                                  f"artrecon reads {FORMAT!r}; reconstruct again")
+    problems = _file_problems(folder, record)
+    if problems:
+        raise ReconstructionError(f"the matches in {folder} are incomplete: "
+                                  f"{'; '.join(problems)}; reconstruct again")
+
+    def arrays(name: str) -> dict:
+        with np.load(folder / name) as npz:
+            return {k: npz[k] for k in npz.files}
+
+    obj, bg, cand = arrays("object.npz"), arrays("background.npz"), arrays("candidates.npz")
+    candidates = tuple(PointDescriptors(cand[f"ids_{k}"], cand[f"xyz_{k}"], cand[f"desc_{k}"])
+                       for k in ("a", "b"))
+    covariances = None
+    if record.get("covariances"):
+        cov = arrays("covariances.npz")
+        covariances = MatchCovariances(*(cov[k] for k in _COVARIANCE_FIELDS))
+    return Matching(CrossMatches(*(obj[k] for k in _MATCH_FIELDS)),
+                    CrossMatches(*(bg[k] for k in _MATCH_FIELDS)), candidates, covariances,
+                    record)
