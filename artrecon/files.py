@@ -2,8 +2,9 @@
 
 - Output folders: :func:`check_output_path` / :func:`check_output_dir` refuse an output that is,
   holds or lies inside an input, or replaces what this command did not write;
-  :func:`make_work_dir` + :func:`publish_dir` put a complete result in place by renaming, and
-  :func:`remove_stale_work_dirs` clears what killed runs left.
+  :func:`make_work_dir` + :func:`publish_dir` put a complete result in place by renaming
+  (:func:`work_dir` holds the work folder for a block and removes it when the block ends
+  unpublished), and :func:`remove_stale_work_dirs` clears what killed runs left.
 - Files: JSON, text, bytes and PLY written atomically (a temporary file beside the target,
   renamed over it), :class:`StagedFiles` / :func:`write_files_atomic` for several files at once;
   :func:`read_ply`, :func:`read_json`.
@@ -11,6 +12,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import filecmp
 import json
 import logging
@@ -78,6 +80,25 @@ def make_work_dir(out_dir: str | Path) -> Path:
     # mkdtemp makes 0700; the published folder gets the usual mode (as mkdir would give it)
     os.chmod(work, 0o777 & ~umask())
     return work
+
+
+@contextlib.contextmanager
+def work_dir(out_dir: str | Path):
+    """The work folder of a run writing ``out_dir`` (:func:`make_work_dir`) for the ``with``
+    block, removed when the block ends without publishing it (an error, Ctrl-C).
+
+    Removed wherever the interrupt lands, even inside :func:`make_work_dir` after the folder was
+    made and before its name reached the caller (a busy machine can pause a process there, and a
+    Ctrl-C then left the folder behind): every work folder of ``out_dir`` named with this
+    process's id goes. A published folder has been renamed and is not touched.
+    """
+    out_dir = Path(out_dir)
+    try:
+        yield make_work_dir(out_dir)
+    finally:
+        own = _WORK_PREFIX.format(name=out_dir.name) + f"{os.getpid()}-"
+        for p in out_dir.parent.glob(glob_escape(own) + "*"):
+            shutil.rmtree(p, ignore_errors=True)
 
 
 def check_output_path(out: str | Path, inputs, *, flag: str = "--out",

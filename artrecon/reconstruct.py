@@ -78,6 +78,7 @@ runs them in order).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import shutil
 import tempfile
@@ -98,8 +99,8 @@ from artrecon.errors import InputError
 from artrecon.files import (
     check_output_dir,
     check_output_path,
-    make_work_dir,
     publish_dir,
+    work_dir,
 )
 from artrecon.io import (
     Intrinsics,
@@ -276,11 +277,11 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
                           restart="start from the matches instead (--from matches, "
                           "from_stage='matches'), which recomputes them from OUT/a and OUT/b")
             matches = out_dir / "matches"
-    if out_dir is not None:
-        work = make_work_dir(out_dir)  # also removes those of interrupted runs
-    else:
-        work = Path(tempfile.mkdtemp(prefix="artrecon-"))
-    try:
+    with contextlib.ExitStack() as stack:
+        # the work folder (beside OUT: work_dir also removes those of interrupted runs) goes when
+        # the run ends, published or not
+        work = (stack.enter_context(work_dir(out_dir)) if out_dir is not None
+                else Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="artrecon-"))))
         model = _run(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work, seed, config,
                      progress, jobs, configurations, matches, first=first, last=last)
         if model is not None:
@@ -290,9 +291,6 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
                 model.save(work / "model.json")
             publish_dir(work, out_dir)
             log.info("wrote %s", out_dir)
-    finally:
-        if work.exists():
-            shutil.rmtree(work, ignore_errors=True)
     return model
 
 

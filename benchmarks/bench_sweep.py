@@ -68,9 +68,9 @@ def main(argv=None) -> int:
                ("jobs2", sweep.SweepConfig(jobs=2, progress=False))]
     if args.ray:
         configs.append(("ray", sweep.SweepConfig(backend="ray", jobs=2, progress=False)))
-    print(f"{len(specs)} runs ({', '.join(args.scene)}, seeds {args.seeds}, {args.views} views per ring, "
-          f"{'with' if args.manipulate else 'no'} manipulation) on {os.cpu_count()} cores; "
-          f"out {out}", flush=True)
+    print(f"{len(specs)} runs ({', '.join(args.scene)}, seeds {args.seeds}, {args.views} views "
+          f"per ring, {'with' if args.manipulate else 'no'} manipulation) on "
+          f"{os.cpu_count()} cores; out {out}", flush=True)
     walls, figures = {}, {}
     for name, cfg in configs:
         load0 = os.getloadavg()

@@ -72,6 +72,33 @@ def test_work_folders_get_the_usual_mode(tmp_path):
     assert out.stat().st_mode & 0o777 == 0o777 & ~files.umask()
 
 
+def test_an_interrupt_inside_make_work_dir_leaves_no_work_folder(tmp_path, monkeypatch):
+    """CI, on a busy machine: Ctrl-C reached sim.capture after the work folder was made and before
+    its name was returned, and the folder stayed. work_dir removes this process's work folders of
+    OUT wherever the interrupt lands; another live run's and the published folder stay."""
+    out = tmp_path / "out"
+    other = tmp_path / f".out.tmp-{os.getppid()}-x"  # a live process's work folder (the parent)
+    other.mkdir()
+
+    def interrupted() -> int:  # called by make_work_dir after mkdtemp
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(files, "umask", interrupted)
+    with pytest.raises(KeyboardInterrupt), files.work_dir(out):
+        pytest.fail("the block must not run")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [other.name]
+    monkeypatch.undo()
+    with pytest.raises(RuntimeError), files.work_dir(out) as work:  # an error in the block
+        (work / "model.json").write_text("{}")
+        raise RuntimeError("stage failed")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [other.name]
+    with files.work_dir(out) as work:  # published: kept, nothing else left
+        (work / "model.json").write_text("{}")
+        files.publish_dir(work, out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([other.name, "out"])
+    assert (out / "model.json").is_file()
+
+
 def test_killed_export_leaves_the_old_twin_and_a_rerun_finishes(tmp_path):
     _, model = synthetic_model(4, "chain", ("revolute", "prismatic"), 1.0, True)
     rng = np.random.default_rng(0)

@@ -23,7 +23,6 @@ hand-eye transform is needed).
 from __future__ import annotations
 
 import logging
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,9 +33,9 @@ import pycolmap
 from artrecon.errors import InputError, ReconstructionError
 from artrecon.files import (
     check_output_dir,
-    make_work_dir,
     publish_dir,
     read_json,
+    work_dir,
     write_json_atomic,
 )
 from artrecon.model import ArticulatedModel
@@ -408,14 +407,10 @@ def register(model_dir, *, camera_poses=None, images: list[FreshImage] | None = 
                                            "route": route}
     result = Registration(registered, T, route, routes, agreement)
     if out_dir is not False:
-        work = make_work_dir(out_dir)
-        try:
+        with work_dir(out_dir) as work:
             registered.save(work / "model.json")
             write_json_atomic(work / "registration.json", result.report())
             publish_dir(work, out_dir)
-        finally:
-            if work.exists():
-                shutil.rmtree(work, ignore_errors=True)
         log.info("registered %s (%s) into %s", folder.dir, route, out_dir)
     return result
 

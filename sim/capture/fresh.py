@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from artrecon.files import make_work_dir
+from artrecon.files import work_dir
 from sim import render, robot, views
 from sim.capture.arm import Arm
 from sim.capture.files import as_list, check_out_dir, png_bytes
@@ -106,8 +105,7 @@ def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.
     renderer = render.MjRenderer(model)
     color = renderer.render(data, K, T_true, width, height).color
     T_flange = kin.frame_pose(q, "flange")
-    tmp = make_work_dir(out_dir)
-    try:
+    with work_dir(out_dir) as tmp:
         (tmp / "fresh.png").write_bytes(png_bytes(color, "colour"))
         pose = {"scene": sc.name, "config": config, "q": [float(x) for x in q],
                 "joint_names": list(kin.joint_names), "K": as_list(K),
@@ -121,7 +119,4 @@ def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.
         (tmp / "ground_truth.json").write_text(json.dumps(
             {"T_world_camera": as_list(T_true)}, indent=2) + "\n")
         os.replace(tmp, out_dir)  # never over a folder made since the check: not publish_dir()
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return FreshView(out_dir / "fresh.png", out_dir / "pose.json", q, T_flange, T_true)

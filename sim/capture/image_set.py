@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import logging
-import shutil
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -26,7 +25,7 @@ import mujoco
 import numpy as np
 from tqdm import tqdm
 
-from artrecon.files import make_work_dir, publish_dir
+from artrecon.files import publish_dir, work_dir
 from artrecon.geometry import rotation_angle
 from sim import render, robot, views
 from sim.capture.arm import Arm
@@ -183,85 +182,86 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
     if reachable:
         arm.place(reachable[0].q)
 
-    tmp = make_work_dir(out_dir)
-    # PNGs are compressed and written in a background thread (zlib releases the GIL) while the
-    # arm moves to the next view
-    writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="capture-png")
-    writes = []
-    try:
-        for sub in ("images", "ground_truth/depth", "ground_truth/labels"):
-            (tmp / sub).mkdir(parents=True)
-        cam_images, gt_images, free = [], [], []
-        t_move = t_render = move_cpu = png_cpu = 0.0
-        max_dp = max_dr = 0.0
-        for i, view in enumerate(to_take):
-            name = f"{i:03d}.png"
-            t0, c0 = time.perf_counter(), time.thread_time()
-            path_hits: list[str] = []
-            if view.reachable:
-                path_hits = arm.move(view.q)
-                if path_hits:
+    # the work folder goes when the capture ends unpublished, after the PNG writer has stopped
+    with work_dir(out_dir) as tmp:
+        # PNGs are compressed and written in a background thread (zlib releases the GIL) while the
+        # arm moves to the next view
+        writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="capture-png")
+        writes = []
+        try:
+            for sub in ("images", "ground_truth/depth", "ground_truth/labels"):
+                (tmp / sub).mkdir(parents=True)
+            cam_images, gt_images, free = [], [], []
+            t_move = t_render = move_cpu = png_cpu = 0.0
+            max_dp = max_dr = 0.0
+            for i, view in enumerate(to_take):
+                name = f"{i:03d}.png"
+                t0, c0 = time.perf_counter(), time.thread_time()
+                path_hits: list[str] = []
+                if view.reachable:
+                    path_hits = arm.move(view.q)
+                    if path_hits:
+                        raise CaptureError(
+                            f"the arm touched {', '.join(path_hits)} on its way to view {i} of "
+                            f"{sc.name!r} (ring {view.ring}, azimuth "
+                            f"{np.rad2deg(view.azimuth):.0f} deg): the planned views are "
+                            "collision-free but the straight joint-space move between them is not; "
+                            "try other elevations or --views")
+                joints_now = sc.joint_values(data)
+                drift = max((abs(joints_now[k] - joints_config[k]) for k in joints_now),
+                            default=0.0)
+                if drift > capture_config.object_drift_tol:
                     raise CaptureError(
-                        f"the arm touched {', '.join(path_hits)} on its way to view {i} of "
-                        f"{sc.name!r} (ring {view.ring}, azimuth "
-                        f"{np.rad2deg(view.azimuth):.0f} deg): the planned views are "
-                        "collision-free but the straight joint-space move between them is not; "
-                        "try other elevations or --views")
-            joints_now = sc.joint_values(data)
-            drift = max((abs(joints_now[k] - joints_config[k]) for k in joints_now), default=0.0)
-            if drift > capture_config.object_drift_tol:
-                raise CaptureError(
-                    f"the arm moved the object of {sc.name!r} by {drift:.2e} (rad or m) while "
-                    f"reaching view {i} (contacts: {', '.join(path_hits) or 'none seen'}); the "
-                    "scene or the view plan lets the arm hit the object")
-            T_true = true_camera_pose(data, rig.cam_id)
-            if view.reachable:
-                q = arm.measured_q()
-                T_fk = kin.camera_pose(q)
-                dp = float(np.linalg.norm(T_fk[:3, 3] - T_true[:3, 3]))
-                dr = rotation_angle(T_fk[:3, :3].T @ T_true[:3, :3])
-                max_dp, max_dr = max(max_dp, dp), max(max_dr, dr)
-                T_render = T_true
-            else:
-                q, T_fk, dp, dr = None, None, None, None
-                T_render = view.T_world_camera
-                free.append(i)
-            t1 = time.perf_counter()
-            move_cpu += time.thread_time() - c0
-            out = renderer.render(data, K, T_render, width, height, depth=True, labels=True)
-            t2 = time.perf_counter()
-            t_move += t1 - t0
-            t_render += t2 - t1
-            writes.append(writer.submit(write_pngs, (
-                (out.color, tmp / "images" / name, "colour"),
-                (depth_png(out.depth), tmp / "ground_truth" / "depth" / name, "depth"),
-                (labels_png(out.labels), tmp / "ground_truth" / "labels" / name, "labels"))))
-            cam_images.append(_camera_image(name, view, q, T_fk, kin))
-            gt_images.append(_truth_image(name, view, T_render, dp, dr, joints_now, sc, data))
-            bar.update(1)
-        bar.close()
-        unreachable = [{"ring": v.ring, "azimuth_deg": float(np.rad2deg(v.azimuth)),
-                        "elevation_deg": float(np.rad2deg(v.elevation)), "reason": v.reason}
-                       for v in plan.unreachable]
-        records = {
-            "cameras.json": _cameras_json(sc, config, rig, cam_images),
-            "capture.json": _capture_json(sc, config, plan_cfg, plan, len(to_take), free,
-                                          unreachable, kin, arm),
-            "ground_truth/poses.json": _poses_json(sc, config, joints_config, true_sphere,
-                                                   gt_images),
-        }
-        for w in writes:
-            png_cpu += w.result()  # raises the first failed write
-        for rel, obj in records.items():
-            (tmp / rel).write_text(json.dumps(obj, indent=2) + "\n")
-        publish_dir(tmp, out_dir)
-    except BaseException:
-        bar.close()
-        writer.shutdown(wait=True, cancel_futures=True)
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    finally:
-        writer.shutdown(wait=True)
+                        f"the arm moved the object of {sc.name!r} by {drift:.2e} (rad or m) while "
+                        f"reaching view {i} (contacts: {', '.join(path_hits) or 'none seen'}); the "
+                        "scene or the view plan lets the arm hit the object")
+                T_true = true_camera_pose(data, rig.cam_id)
+                if view.reachable:
+                    q = arm.measured_q()
+                    T_fk = kin.camera_pose(q)
+                    dp = float(np.linalg.norm(T_fk[:3, 3] - T_true[:3, 3]))
+                    dr = rotation_angle(T_fk[:3, :3].T @ T_true[:3, :3])
+                    max_dp, max_dr = max(max_dp, dp), max(max_dr, dr)
+                    T_render = T_true
+                else:
+                    q, T_fk, dp, dr = None, None, None, None
+                    T_render = view.T_world_camera
+                    free.append(i)
+                t1 = time.perf_counter()
+                move_cpu += time.thread_time() - c0
+                out = renderer.render(data, K, T_render, width, height, depth=True, labels=True)
+                t2 = time.perf_counter()
+                t_move += t1 - t0
+                t_render += t2 - t1
+                writes.append(writer.submit(write_pngs, (
+                    (out.color, tmp / "images" / name, "colour"),
+                    (depth_png(out.depth), tmp / "ground_truth" / "depth" / name, "depth"),
+                    (labels_png(out.labels), tmp / "ground_truth" / "labels" / name, "labels"))))
+                cam_images.append(_camera_image(name, view, q, T_fk, kin))
+                gt_images.append(_truth_image(name, view, T_render, dp, dr, joints_now, sc, data))
+                bar.update(1)
+            bar.close()
+            unreachable = [{"ring": v.ring, "azimuth_deg": float(np.rad2deg(v.azimuth)),
+                            "elevation_deg": float(np.rad2deg(v.elevation)), "reason": v.reason}
+                           for v in plan.unreachable]
+            records = {
+                "cameras.json": _cameras_json(sc, config, rig, cam_images),
+                "capture.json": _capture_json(sc, config, plan_cfg, plan, len(to_take), free,
+                                              unreachable, kin, arm),
+                "ground_truth/poses.json": _poses_json(sc, config, joints_config, true_sphere,
+                                                       gt_images),
+            }
+            for w in writes:
+                png_cpu += w.result()  # raises the first failed write
+            for rel, obj in records.items():
+                (tmp / rel).write_text(json.dumps(obj, indent=2) + "\n")
+            publish_dir(tmp, out_dir)
+        except BaseException:
+            bar.close()
+            writer.shutdown(wait=True, cancel_futures=True)
+            raise
+        finally:
+            writer.shutdown(wait=True)
     t_end = time.perf_counter()
     cpu = time.process_time() - cpu_start
     n = max(1, len(to_take))
