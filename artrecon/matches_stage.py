@@ -308,7 +308,7 @@ def load_matches(folder: str | Path) -> Matching:
     covariances = None
     if record.get("covariances"):
         cov = arrays("covariances.npz")
-        covariances = MatchCovariances(*(cov[k] for k in _COVARIANCE_FIELDS))
-    return Matching(CrossMatches(*(obj[k] for k in _MATCH_FIELDS)),
-                    CrossMatches(*(bg[k] for k in _MATCH_FIELDS)), candidates, covariances,
+        covariances = MatchCovariances(**{k: cov[k] for k in _COVARIANCE_FIELDS})
+    return Matching(CrossMatches(**{k: obj[k] for k in _MATCH_FIELDS}),
+                    CrossMatches(**{k: bg[k] for k in _MATCH_FIELDS}), candidates, covariances,
                     record)
