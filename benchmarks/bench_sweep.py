@@ -62,7 +62,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, default=ROOT / "runs" / "bench_sweep")
     args = p.parse_args(argv)
     out = args.out / datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-    ev = EvalConfig(views=args.views, manipulate=args.manipulate)
+    ev = EvalConfig(views=args.views, manipulate=args.manipulate, progress=False)
     specs = sweep.plan(args.scene, ev, args.seeds)
     configs = [("jobs1", sweep.SweepConfig(jobs=1, progress=False)),
                ("jobs2", sweep.SweepConfig(jobs=2, progress=False))]
