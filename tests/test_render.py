@@ -197,13 +197,14 @@ def test_small_marker_projects_to_K_times_point():
         np.testing.assert_allclose([u.mean(), v.mean()], proj[i], atol=0.2)
 
 
-def _write_textured_quad(tmp_path):
+def _write_textured_quad(tmp_path, width: int = 64, height: int = 64):
     """A 0.2 m square OBJ facing +z with a texture of four coloured quadrants."""
-    img = np.zeros((64, 64, 3), np.uint8)
-    img[:32, :32] = [255, 0, 0]      # image top-left: red
-    img[:32, 32:] = [0, 255, 0]      # top-right: green
-    img[32:, :32] = [0, 0, 255]      # bottom-left: blue
-    img[32:, 32:] = [255, 255, 0]    # bottom-right: yellow
+    img = np.zeros((height, width, 3), np.uint8)
+    h2, w2 = height // 2, width // 2
+    img[:h2, :w2] = [255, 0, 0]      # image top-left: red
+    img[:h2, w2:] = [0, 255, 0]      # top-right: green
+    img[h2:, :w2] = [0, 0, 255]      # bottom-left: blue
+    img[h2:, w2:] = [255, 255, 0]    # bottom-right: yellow
     Image.fromarray(img).save(tmp_path / "quad.png")
     # OBJ convention: vt (0, 0) is the image's bottom-left corner. A fifth vertex behind the
     # quad gives the mesh volume (MuJoCo builds a convex hull).
@@ -222,8 +223,12 @@ def _write_textured_quad(tmp_path):
         <geom type="mesh" mesh="quad" material="m"/></body></worldbody></mujoco>"""
 
 
-def test_textured_mesh_uses_obj_uv_convention_and_geom_pose(tmp_path):
-    model = mujoco.MjModel.from_xml_string(_write_textured_quad(tmp_path))
+@pytest.mark.parametrize("width, height", [(64, 64), (322, 412)])
+def test_textured_mesh_uses_obj_uv_convention_and_geom_pose(tmp_path, width, height):
+    """322 x 3 bytes per row is no multiple of 4: uploaded as RGB, OpenGL read the packed rows as
+    padded ones, so the texture was sheared and its last rows came from beyond the buffer (the
+    imported chest's captures differed from run to run). Two renderers now draw the same."""
+    model = mujoco.MjModel.from_xml_string(_write_textured_quad(tmp_path, width, height))
     data = mujoco.MjData(model)
     data.qpos[0] = 0.3
     mujoco.mj_forward(model, data)
@@ -247,6 +252,8 @@ def test_textured_mesh_uses_obj_uv_convention_and_geom_pose(tmp_path):
         got = out.color[int(round(v)), int(round(u))].astype(int)
         assert np.abs(got - rgb).max() < 40, f"quadrant {(x, y)}: got {got}, expected {rgb}"
         np.testing.assert_allclose(out.depth[int(round(v)), int(round(u))], pc[2], atol=DEPTH_TOL)
+    again = R.MjRenderer(model).render(data, K2, T, w, h).color
+    np.testing.assert_array_equal(again, out.color)
 
 
 def test_plane_texture_repeats_per_unit_length():

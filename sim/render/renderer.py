@@ -135,11 +135,16 @@ class MjRenderer:
     def _texture(self, tex_id: int) -> pyrender.Texture:
         if tex_id not in self._textures:
             img = texture_image(self.model, tex_id)
+            # RGBA, not RGB: pyrender uploads the rows packed while OpenGL reads them padded to 4
+            # bytes, so an RGB texture whose width * 3 is not a multiple of 4 was drawn sheared,
+            # its last rows read from beyond the buffer (different in every renderer: chest's
+            # 322-pixel-wide texture made its captures differ from run to run)
+            img = np.concatenate([img, np.full(img.shape[:2] + (1,), 255, np.uint8)], axis=2)
             sampler = pyrender.Sampler(magFilter=pyrender.constants.GLTF.LINEAR,
                                        minFilter=pyrender.constants.GLTF.LINEAR_MIPMAP_LINEAR,
                                        wrapS=pyrender.constants.GLTF.REPEAT,
                                        wrapT=pyrender.constants.GLTF.REPEAT)
-            self._textures[tex_id] = pyrender.Texture(source=img, source_channels="RGB",
+            self._textures[tex_id] = pyrender.Texture(source=img, source_channels="RGBA",
                                                       sampler=sampler)
         return self._textures[tex_id]
 
