@@ -7,6 +7,8 @@ full evaluation against the main job's gates is tests/test_author_gates.py (slow
 from __future__ import annotations
 
 import math
+import os
+import shutil
 from pathlib import Path
 
 import cv2
@@ -28,9 +30,12 @@ from author_objects import (
     write_partnet_chest,
 )
 
+from sim import cache
 from sim.author import AuthorError, ImportConfig, import_object
 from sim.author.__main__ import main as author_main
-from sim.scene import load_scene, physics_warnings, stage_file
+from sim.scene import BUNDLED_SCENES_DIR, load_scene, physics_warnings
+
+REPO = BUNDLED_SCENES_DIR.resolve().parent
 
 #: Drift allowed over a second left alone (as tests/test_scenes.py demands of every scene).
 HOLD_TOL = {"revolute": np.deg2rad(0.5), "prismatic": 1e-3}
@@ -76,10 +81,15 @@ def test_partnet_urdf_becomes_a_scene_in_a_folder_of_its_own(chest):
     res, scene = chest
     folder = res.scene.parent
     assert res.scene.name == "partnet_45135.xml"  # a mobility.urdf: named after its folder
-    assert sorted(p.name for p in folder.iterdir()) == ["assets", "partnet_45135.xml"]
+    # the scene, its assets and the stage beside them: the folder holds everything it needs
+    assert sorted(p.name for p in folder.iterdir()) == ["assets", "partnet_45135.xml", "robots",
+                                                        "stage.xml"]
     assert all(p.parent == folder / "assets" and p.name.startswith("partnet_45135_")
                for p in res.assets)
-    assert f'<include file="{stage_file()}"/>' in res.scene.read_text()
+    assert {"stage.xml", "assets/table.png", "robots/puma560/puma560.xml"} <= \
+        {p.relative_to(folder).as_posix() for p in res.stage}
+    text = res.scene.read_text()
+    assert '<include file="stage.xml"/>' in text and str(REPO) not in text.split("-->", 1)[1]
     # links: the fixed joint merged the carcass into the root; a prismatic and a revolute joint
     assert [li.name for li in scene.links] == ["object", "link_0", "link_1"]
     got = {j.name: (j.type, j.parent, j.child) for j in scene.joints}
@@ -222,6 +232,89 @@ def test_imported_scene_opens_in_plain_mujoco_from_another_folder(chest, monkeyp
     monkeypatch.chdir(res.scene.parent.parent)
     rel = Path(res.scene.parent.name) / res.scene.name
     assert mujoco.MjModel.from_xml_path(str(rel)).nbody == scene.model.nbody
+
+
+def _plain_mujoco_everywhere(path: Path, monkeypatch) -> list[tuple[str, str, mujoco.MjModel]]:
+    """``mujoco.MjModel.from_xml_path`` of ``path`` by its absolute path and by a relative one from
+    several working directories: its folder, the folder above, a subfolder, a folder of this
+    repository with ../robots beside it, and /."""
+    folder = path.parent
+    out = []
+    for cwd in (folder, folder.parent, folder / "assets", REPO / "tests", Path("/")):
+        monkeypatch.chdir(cwd)
+        for p in (str(path), os.path.relpath(path, cwd)):
+            out.append((str(cwd), p, mujoco.MjModel.from_xml_path(p)))
+    return out
+
+
+def test_an_imported_scene_folder_moved_elsewhere_holds_everything_it_needs(chest, tmp_path,
+                                                                            monkeypatch):
+    """The folder an import writes is self-contained, as a MuJoCo Menagerie model folder: copied
+    to another place (another clone, another machine) it opens in MuJoCo's own loader by its
+    absolute or a relative path from any working directory and in the harness, where its
+    configurations hold; the evaluation's cache key does not depend on where the folder is."""
+    res, scene = chest
+    moved = tmp_path / "another" / "machine" / "my_scenes"
+    shutil.copytree(res.scene.parent, moved)
+    path = moved / res.scene.name
+    # every file it depends on is in the folder, and the cache key moves with it
+    assert all(f.is_relative_to(moved.resolve()) and f.is_file() for f in cache.scene_files(path))
+    assert cache.scene_hash(path) == cache.scene_hash(res.scene)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    for cwd, p, model in _plain_mujoco_everywhere(path, monkeypatch):
+        assert model.nbody == scene.model.nbody, (cwd, p)
+    # the harness's loader, from another working directory: the same object, and it holds still
+    monkeypatch.chdir(elsewhere)
+    moved_scene = load_scene(os.path.relpath(path, elsewhere))
+    assert moved_scene.path == path
+    assert [(j.name, j.type, j.value_a, j.value_b) for j in moved_scene.joints] == \
+        [(j.name, j.type, j.value_a, j.value_b) for j in scene.joints]
+    for c in ("a", "b"):
+        assert physics_warnings(moved_scene, 0.2, c) == {}
+        data = moved_scene.make_data(c)
+        mujoco.mj_step(moved_scene.model, data,
+                       nstep=int(round(1.0 / moved_scene.model.opt.timestep)))
+        for j in moved_scene.joints:
+            assert abs(data.qpos[j.qpos_adr] - j.value(c)) < HOLD_TOL[j.type], (c, j.name)
+    # MuJoCo reads the folder's own arm, not this repository's: a body renamed in a copy's arm
+    probe = tmp_path / "probe"
+    shutil.copytree(moved, probe)
+    arm = probe / "robots" / "puma560" / "puma560.xml"
+    arm.write_text(arm.read_text().replace('<body name="link1"', '<body name="probe_link1"', 1))
+    for cwd, p, model in _plain_mujoco_everywhere(probe / res.scene.name, monkeypatch):
+        assert mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "puma_probe_link1") >= 0, \
+            (cwd, p)
+
+
+def test_imports_into_one_folder_share_its_stage_and_never_replace_a_foreign_one(tmp_path):
+    """A second import into a folder reuses the stage there; the Panda's stage joins the
+    PUMA's; a stage copy that differs is replaced on --overwrite only, and a stage.xml that the
+    import did not write never."""
+    src = write_mjcf_cabinet(tmp_path / "src")
+    out = tmp_path / "out"
+    first = import_object(src, out, ImportConfig(name="one"))
+    stage = out / "stage.xml"
+    assert stage in first.stage and "written by sim.author" in stage.read_text()
+    second = import_object(src, out, ImportConfig(name="two"))
+    assert second.stage == [] and load_scene(second.scene).model.nbody > 0
+    panda = import_object(src, out, ImportConfig(name="three", arm="panda"))
+    assert {p.relative_to(out).as_posix() for p in panda.stage} >= \
+        {"stage_panda.xml", "robots/panda/panda.xml", "robots/panda/assets/LICENSE"}
+    assert not any(p.relative_to(out).parts[0] == "assets" for p in panda.stage)  # shared
+    assert load_scene(panda.scene).model.nbody > load_scene(first.scene).model.nbody
+    # a stage copy of another version: kept unless --overwrite
+    stage.write_text(stage.read_text().replace('diffuse="0.5 0.5 0.5"', 'diffuse="0.6 0.6 0.6"'))
+    with pytest.raises(AuthorError, match=r"stage\.xml.*--overwrite"):
+        import_object(src, out, ImportConfig(name="four"))
+    assert not (out / "four.xml").exists() and "0.6 0.6 0.6" in stage.read_text()
+    again = import_object(src, out, ImportConfig(name="four", overwrite=True))
+    assert again.stage == [stage] and "0.6 0.6 0.6" not in stage.read_text()
+    # a stage of the user's own: never replaced
+    stage.write_text((BUNDLED_SCENES_DIR / "stage.xml").read_text())
+    with pytest.raises(AuthorError, match="not written by sim.author"):
+        import_object(src, out, ImportConfig(name="five", overwrite=True))
+    assert not (out / "five.xml").exists()
 
 
 def test_import_is_deterministic(tmp_path):

@@ -46,7 +46,8 @@ def parser() -> argparse.ArgumentParser:
                     "and checked to hold; then the texture check.")
     imp.add_argument("path", type=Path, help="the URDF or MJCF file")
     imp.add_argument("--out", type=Path, required=True,
-                     help="folder of the scene (NAME.xml and assets/NAME_*)")
+                     help="folder of the scene (NAME.xml and assets/NAME_*, with a copy of "
+                          "the stage and the arm beside them: the folder holds everything)")
     imp.add_argument("--name", help="scene name (default: from the file, or the folder of a "
                                     "mobility.urdf)")
     size = imp.add_mutually_exclusive_group()
@@ -106,6 +107,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(f"wrote {res.scene} and {len(res.assets)} files in {res.scene.parent / 'assets'} "
           f"(scale {res.scale:.4g})")
+    if res.stage:
+        print(f"and the stage beside it: {len(res.stage)} files (its copy, assets/ and robots/), "
+              f"so that {res.scene.parent} holds everything the scene needs")
     for c, q in (("A", res.config_a), ("B", res.config_b)):
         print(f"configuration {c}: " + ", ".join(f"{k}={v:.4g}" for k, v in q.items()))
     for n in res.notes:

@@ -15,7 +15,9 @@ What :func:`import_object` does, in order (see ``scenes/README.md`` for the conv
    hull is flat), primitives kept, all with :attr:`ImportConfig.density`; contacts between the
    object's links excluded (the joints guide them);
 7. joint friction and damping from the gravity load each joint carries at A and B;
-8. write ``OUT/NAME.xml`` and ``OUT/assets/NAME_*``, validate the scene
+8. write ``OUT/NAME.xml`` and ``OUT/assets/NAME_*`` with the stage beside them (its copy, its
+   assets and the arm: :mod:`sim.author.stage`, so that the folder holds everything it needs),
+   validate the scene
    (:func:`sim.scene.load_scene`, a second of physics in A and in B without MuJoCo warnings) and
    check both configurations
    hold; raise the friction of a joint that creeps. The files appear only when all of this
@@ -30,7 +32,7 @@ import re
 import shutil
 import tempfile
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
@@ -44,13 +46,14 @@ from sim.author.source import (
     pose,
     transform_points,
 )
+from sim.author.stage import is_stage_copy, stage_copy
 from sim.author.urdf import read_urdf
 from sim.author.writer import (
     SceneWriter,
     joint_range,
     sanitize,
 )
-from sim.scene import BUNDLED_SCENES_DIR, SceneError, load_scene, physics_warnings, stage_file
+from sim.scene import BUNDLED_SCENES_DIR, SceneError, load_scene, physics_warnings
 
 log = logging.getLogger(__name__)
 
@@ -82,6 +85,9 @@ class ImportResult:
     config_b: dict[str, float]
     notes: list[str]
     """what the import changed, chose or left out"""
+    stage: list[Path] = field(default_factory=list)
+    """the files of the stage it wrote beside the scene (the stage copy, its assets, the arm in
+    ``robots/``): none where the folder has them already"""
 
 
 # ------------------------------------------------------------------------------- reading
@@ -180,8 +186,11 @@ def import_object(source: str | Path, out_dir: str | Path,
     source : path
         ``mobility.urdf`` (PartNet-Mobility layout: OBJ meshes per part), any URDF, or an MJCF.
     out_dir : path
-        Folder of the scene: ``OUT/NAME.xml`` and ``OUT/assets/NAME_*`` (created). Anywhere on
-        disk: the scene includes the bundled stage by its absolute path.
+        Folder of the scene: ``OUT/NAME.xml`` and ``OUT/assets/NAME_*`` (created), anywhere on
+        disk. The folder gets what the scene needs besides: a copy of the bundled stage
+        (``stage.xml``, ``stage_panda.xml``), its assets and the arm (``robots/<arm>/``), unless
+        it has them already (:mod:`sim.author.stage`). In ``scenes/`` itself the scene includes
+        the bundled stage by name.
     config : ImportConfig, optional
 
     Returns
@@ -193,7 +202,9 @@ def import_object(source: str | Path, out_dir: str | Path,
     AuthorError
         The source cannot be read or imported, a configuration is wrong, the object overhangs
         the table, the scene does not validate or a configuration does not hold; or the output
-        files exist (pass ``overwrite``). Nothing is written then.
+        files exist (pass ``overwrite``), or the folder's stage files differ from the harness's
+        (pass ``overwrite``; never for a stage file the import did not write). Nothing is
+        written then.
     """
     config = config or ImportConfig()
     source = Path(source).resolve()
@@ -245,16 +256,21 @@ def import_object(source: str | Path, out_dir: str | Path,
               "of the earlier import")
     if xml_path.exists() and not config.overwrite:
         raise AuthorError(f"{xml_path} exists (an earlier import named {name!r}?); {refuse}")
+    bundled = out_dir == BUNDLED_SCENES_DIR.resolve()  # beside the stage: include it by name
+    stage = stage_copy(config.arm)
+    stage_writes = [] if bundled else _stage_writes(stage, out_dir, config.overwrite)
     created = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=out_dir))
     try:
         writer = SceneWriter(obj, name, config, s, U, t, tmp, notes)
         writer.build()
-        stage = str(stage_of(config.arm))  # by its absolute path while in the temporary folder
-        friction = writer.initial_friction(stage, qa, qb)
+        for rel, data in stage.files.items():  # validated with the stage beside it, as written
+            (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
+            (tmp / rel).write_bytes(data)
+        friction = writer.initial_friction(stage.head, qa, qb)
         for attempt in range(HOLD_TRIES + 1):
-            writer.write(stage, qa, qb, friction)
+            writer.write(stage.head, qa, qb, friction)
             creeping = _validate(tmp / f"{name}.xml", qa, qb)
             if not creeping:
                 break
@@ -268,21 +284,25 @@ def import_object(source: str | Path, out_dir: str | Path,
                 friction[k] *= HOLD_FRICTION_GROWTH
             notes.append(f"joints {sorted(creeping)} crept: friction loss raised to "
                          f"{ {k: round(friction[k], 3) for k in creeping} }")
-        clash = [asset_dir / p.name for p in (tmp / "assets").iterdir()
-                 if (asset_dir / p.name).exists()]
+        own = [p for p in (tmp / "assets").iterdir() if f"assets/{p.name}" not in stage.files]
+        clash = [asset_dir / p.name for p in own if (asset_dir / p.name).exists()]
         if clash and not config.overwrite:
             raise AuthorError(f"{asset_dir}: {len(clash)} of the files this import writes are "
                               f"there already ({clash[0].name}, ...); {refuse}")
         # whole or nothing: move the validated files into place
         asset_dir.mkdir(exist_ok=True)
         written = []
-        for p in sorted((tmp / "assets").iterdir()):
+        for p in sorted(own):
             shutil.move(str(p), asset_dir / p.name)
             written.append(asset_dir / p.name)
+        stage_written = []
+        for rel in stage_writes:
+            (out_dir / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.move(str(tmp / rel), out_dir / rel)
+            stage_written.append(out_dir / rel)
         text = (tmp / f"{name}.xml").read_text()
-        if out_dir == BUNDLED_SCENES_DIR.resolve():  # beside the stage: include it by name
-            text = text.replace(f'<include file="{stage}"/>',
-                                f'<include file="{Path(stage).name}"/>')
+        if bundled:  # the bundled stage declares its arm itself
+            text = text.replace("\n".join(stage.head), f'  <include file="{stage.name}"/>')
         xml_path.write_text(text)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -292,12 +312,34 @@ def import_object(source: str | Path, out_dir: str | Path,
     shutil.rmtree(tmp, ignore_errors=True)
     for n in notes:
         log.info("%s: %s", name, n)
-    return ImportResult(xml_path, written, s, qa, qb, notes)
+    return ImportResult(xml_path, written, s, qa, qb, notes, stage_written)
 
 
-def stage_of(arm: str) -> Path:
-    """The bundled stage carrying ``arm``."""
-    return stage_file(arm)
+def _stage_writes(stage, out_dir: Path, overwrite: bool) -> list[str]:
+    """The stage files (paths relative to ``out_dir``) to write there: those missing, and on
+    ``overwrite`` those that differ. Raises where a file differs without ``overwrite``, or where
+    the stage file itself differs and was not written by the import."""
+    missing, differ = [], []
+    for rel, data in stage.files.items():
+        dest = out_dir / rel
+        if not dest.exists():
+            missing.append(rel)
+        elif not dest.is_file() or dest.read_bytes() != data:
+            differ.append(rel)
+    if not differ:
+        return missing
+    what = (f"{len(differ)} of the stage's files this import writes beside the scene (the "
+            f"stage, its assets and the arm) differ from the harness's in {out_dir}: "
+            f"{', '.join(differ[:3])}{', ...' if len(differ) > 3 else ''}; the folder's other "
+            f"scenes use them")
+    if stage.name in differ and not is_stage_copy(out_dir / stage.name):
+        raise AuthorError(f"{what}, and {stage.name} there was not written by sim.author (a "
+                          f"stage of your own?); fix: import into another folder (--out)")
+    if not overwrite:
+        raise AuthorError(f"{what} (written by another version of the harness?); fix: another "
+                          f"--out, or --overwrite to replace them with the harness's current "
+                          f"ones (the folder's other scenes then use those)")
+    return missing + differ
 
 
 def _validate(path: Path, qa: dict, qb: dict) -> set[str]:

@@ -238,11 +238,11 @@ class SceneWriter:
                 f'size="{_f(*size)}" pos="{_f(*T[:3, 3])}" quat="{_f(*q)}" '
                 f'density="{density:g}"/>')
 
-    def initial_friction(self, stage: str, qa: dict, qb: dict) -> dict[str, float]:
+    def initial_friction(self, head: list[str], qa: dict, qb: dict) -> dict[str, float]:
         """Friction loss per joint: the baseline of its child's weight, or more than the
         gravity load it carries in A and B (from a provisional compile)."""
         friction = {j.name: 0.0 for j in self.obj.joints}
-        self.write(stage, qa, qb, friction)
+        self.write(head, qa, qb, friction)
         model = mujoco.MjModel.from_xml_path(str(self.folder / f"{self.name}.xml"))
         data = mujoco.MjData(model)
         out = {}
@@ -265,8 +265,9 @@ class SceneWriter:
             out[j.name] = max(base, FRICTION_OVER_LOAD * load)
         return out
 
-    def write(self, stage: str, qa: dict, qb: dict, friction: dict[str, float]) -> None:
-        """The scene file (assets written by :meth:`build`)."""
+    def write(self, head: list[str], qa: dict, qb: dict, friction: dict[str, float]) -> None:
+        """The scene file (assets written by :meth:`build`); ``head``: its first lines in
+        ``<mujoco>``, which bring in the stage (:attr:`sim.author.stage.StageCopy.head`)."""
         obj, names = self.obj, self.body_name
         children: dict[str, list] = {}
         for j in obj.joints:
@@ -275,8 +276,7 @@ class SceneWriter:
                  f"     (scale {self.s:.6g}: source units to metres). Conventions: "
                  f"scenes/README.md."]
         lines += [f"     - {n}" for n in self.notes]
-        lines += ["-->", f'<mujoco model="{self.name}">', f'  <include file="{stage}"/>', "",
-                  "  <asset>"]
+        lines += ["-->", f'<mujoco model="{self.name}">', *head, "", "  <asset>"]
         lines += [f"    {a}" for a in self.assets]
         lines += ["  </asset>", "", "  <worldbody>"]
 
