@@ -108,8 +108,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"wrote {res.scene} and {len(res.assets)} files in {res.scene.parent / 'assets'} "
           f"(scale {res.scale:.4g})")
     if res.stage:
-        print(f"and the stage beside it: {len(res.stage)} files (its copy, assets/ and robots/), "
-              f"so that {res.scene.parent} holds everything the scene needs")
+        print(f"with the stage beside it: {len(res.stage)} files (the stage, its assets, the "
+              f"arm in robots/): a self-contained folder")
     for c, q in (("A", res.config_a), ("B", res.config_b)):
         print(f"configuration {c}: " + ", ".join(f"{k}={v:.4g}" for k, v in q.items()))
     for n in res.notes:
