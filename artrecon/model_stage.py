@@ -185,7 +185,7 @@ def refine_articulation(art: Articulation, sfms: dict, ids_a: np.ndarray, ids_b:
     root = art.tree.root
     out = refine_joints(art.points_a, seg.labels, tracks_a, tracks_b, views_a, views_b,
                         art.joints, root, seg.transforms[root], seg.n_links,
-                        scale_known=scale_known, config=config)
+                        scale_known=scale_known, points_b=art.points_b, config=config)
     seg = replace(seg, transforms=list(out.transforms))
     links = links_from_labels(denses["a"], denses["b"], art.labels_a, art.labels_b,
                               seg.transforms)

@@ -42,8 +42,8 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy import sparse
-from scipy.optimize import least_squares
+import pycolmap
+from scipy.spatial import cKDTree
 
 from artrecon.geometry import exp_so3, skew
 from artrecon.model import Joint
@@ -56,6 +56,14 @@ __all__ = ["RefineConfig", "Views", "Tracks", "Refinement", "refine_joints", "tr
 
 #: Observations per configuration a match needs to enter the problem.
 MIN_OBSERVATIONS = 2
+#: The image noise is estimated no lower than this (pixels): the synthetic images' features are
+#: no better than a few hundredths of a pixel.
+MIN_SIGMA_PX = 0.02
+#: How far from its predicted position (pixels) a point's keypoint is looked for in the other
+#: configuration's images (:func:`guided_tracks`): the initial joints put it within a pixel.
+GUIDED_RADIUS_PX = 3.0
+#: Median of the chi-squared distribution with 3 degrees of freedom.
+CHI2_3_MEDIAN = 2.366
 
 
 @dataclass(frozen=True)
@@ -68,8 +76,8 @@ class RefineConfig:
     """Cauchy scale of the residuals, in standard deviations."""
     rounds: int = 3
     """Expectation-maximisation rounds (solve, then re-estimate the noise levels)."""
-    max_evaluations: int = 100
-    """Residual evaluations per solve at most (beside the Jacobian's)."""
+    max_iterations: int = 50
+    """Levenberg-Marquardt iterations per solve at most."""
     max_change_sigma: float = 3.0
     """A refined axis may move from the initial one by at most this many combined standard
     deviations (the initial's bootstrap spread and the refined one's, in quadrature)."""
@@ -158,6 +166,91 @@ def tracks_of(reconstruction, point_ids, rows: dict[int, int]) -> Tracks:
     return Tracks(np.asarray(point, np.int64), np.asarray(view, np.int64), uv)
 
 
+@dataclass(frozen=True)
+class ImageFeatures:
+    """One configuration's keypoints per view (row of :func:`views_of`): normalised image
+    coordinates (k, 2), pixels (k, 2) and unit SIFT descriptors (k, 128), and each camera's image
+    size and its projection (pycolmap Camera, for the predicted points' pixels)."""
+
+    uv: list
+    xy: list
+    desc: list
+    cameras: list
+
+
+def image_features(reconstruction, database_path, rows: dict[int, int]) -> ImageFeatures:
+    """Every keypoint of the registered images (:class:`ImageFeatures`), from the SfM database."""
+    n = len(rows)
+    uv, xy, desc, cams = [None] * n, [None] * n, [None] * n, [None] * n
+    with pycolmap.Database.open(str(database_path)) as db:
+        for iid, r in rows.items():
+            image = reconstruction.images[iid]
+            camera = reconstruction.cameras[image.camera_id]
+            kp = np.asarray(db.read_keypoints(iid), float).reshape(-1, 6)[:, :2] \
+                if db.exists_keypoints(iid) else np.zeros((0, 2))
+            d = db.read_descriptors(iid)
+            d = np.asarray(d.data if hasattr(d, "data") else d, np.float32).reshape(len(kp), -1)
+            d /= np.linalg.norm(d, axis=1, keepdims=True) + 1e-9
+            xy[r], desc[r], cams[r] = kp, d, camera
+            uv[r] = camera.cam_from_img(kp) if len(kp) else np.zeros((0, 2))
+    return ImageFeatures(uv, xy, desc, cams)
+
+
+def guided_tracks(points: np.ndarray, descriptors: np.ndarray, views: Views,
+                  features: ImageFeatures, *, radius_px: float = GUIDED_RADIUS_PX,
+                  min_similarity: float = 0.85, margin: float = 0.03) -> Tracks:
+    """2D observations of points the other configuration saw, found in this configuration's
+    images where their predicted positions fall: in each view, the keypoint within
+    ``radius_px`` of the prediction whose descriptor is most like the point's (cosine similarity
+    at least ``min_similarity``, ahead of the next keypoint there by ``margin``).
+
+    Parameters
+    ----------
+    points : (n, 3)
+        The points' predicted positions in this configuration's frame (their link's motion
+        applied).
+    descriptors : (n, 128)
+        Their unit descriptors (the mean of their tracks',
+        :class:`artrecon.features.PointDescriptors`).
+    views : Views
+    features : ImageFeatures
+    """
+    point, view, uv = [], [], []
+    for v in range(len(views.rotations)):
+        kp = features.xy[v]
+        if kp is None or len(kp) == 0 or len(points) == 0:
+            continue
+        xc = points @ views.rotations[v].T + views.translations[v]
+        front = np.flatnonzero(xc[:, 2] > 0)
+        if len(front) == 0:
+            continue
+        cam = features.cameras[v]
+        px = np.asarray(cam.img_from_cam(xc[front], False), float).reshape(-1, 2)
+        inside = ((px[:, 0] >= 0) & (px[:, 1] >= 0) & (px[:, 0] < cam.width)
+                  & (px[:, 1] < cam.height))
+        front, px = front[inside], px[inside]
+        if len(front) == 0:
+            continue
+        dist, idx = cKDTree(kp).query(px, k=4, distance_upper_bound=radius_px)
+        near = idx < len(kp)
+        sim = np.full(idx.shape, -np.inf)
+        rows_, cols_ = np.nonzero(near)
+        sim[rows_, cols_] = np.einsum("kd,kd->k", features.desc[v][idx[rows_, cols_]],
+                                      descriptors[front[rows_]])
+        order = np.argsort(-sim, axis=1)
+        best = np.take_along_axis(sim, order[:, :1], 1)[:, 0]
+        second = np.take_along_axis(sim, order[:, 1:2], 1)[:, 0]
+        # a lone keypoint in reach has no second (-inf): its margin is infinite
+        ok = (best >= min_similarity) & ((second == -np.inf) | (best - second >= margin))
+        k_best = np.take_along_axis(idx, order[:, :1], 1)[:, 0]
+        for i in np.flatnonzero(ok):
+            point.append(front[i])
+            view.append(v)
+            uv.append(features.uv[v][k_best[i]])
+    return Tracks(np.asarray(point, np.int64), np.asarray(view, np.int64),
+                  np.asarray(uv, float).reshape(-1, 2))
+
+
 # --------------------------------------------------------------------------- the kinematic model
 
 @dataclass
@@ -185,6 +278,7 @@ class _Kinematics:
         self.scale_free = scale_free
         self.blocks: list[_JointBlock] = []
         offset = 7 if scale_free else 6
+        self.length_params = {3, 4, 5}  # the base's translation; the axis points' offsets below
         order = _tree_order(joints, root)
         for j in order:
             jt = joints[j]
@@ -195,6 +289,10 @@ class _Kinematics:
                                 np.asarray(jt.axis_point, float), float(jt.motion), offset,
                                 leader, float(ratio))
             # revolute: 2 axis, 2 point, 1 angle; prismatic: 2 direction, 1 displacement
+            if jt.type == "revolute":
+                self.length_params |= {offset + 2, offset + 3}
+            elif leader is None:
+                self.length_params.add(offset + 2)
             offset += (4 if jt.type == "revolute" else 2) + (0 if leader is not None else 1)
             self.blocks.append(block)
         self.n_params = offset
@@ -276,121 +374,160 @@ def _tangent_basis(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------- the problem
 
 class _Problem:
+    """The least-squares problem: residuals, their Jacobians (analytic in the points and offsets,
+    central differences in the few global parameters) and the normal equations with the points
+    eliminated (Schur complement), as in a bundle adjuster."""
+
     def __init__(self, kin: _Kinematics, points: np.ndarray, labels: np.ndarray,
-                 tracks_a: Tracks, tracks_b: Tracks, views_a: Views, views_b: Views):
+                 tracks_a: Tracks, tracks_b: Tracks, views_a: Views, views_b: Views,
+                 loss_scale: float):
         self.kin, self.labels = kin, labels
         self.n = len(points)
         self.points0 = points
         self.ta, self.tb, self.va, self.vb = tracks_a, tracks_b, views_a, views_b
         self.fa = views_a.focal[tracks_a.view]
         self.fb = views_b.focal[tracks_b.view]
+        self.c2 = loss_scale ** 2
         self.sigma_px = 0.5
         self.sigma_d = 1e-4
-        self.g_fixed: np.ndarray | None = None  # joints held (the initial's cost)
+        self.step = 1e-6 * max(_extent(points), 1e-12)  # finite-difference step, lengths
 
-    # layout: [globals (g) | X (3n) | d (3n)]
-    def split(self, x: np.ndarray):
-        g = self.kin.n_params
-        return x[:g], x[g:g + 3 * self.n].reshape(-1, 3), x[g + 3 * self.n:].reshape(-1, 3)
-
-    def x0(self) -> np.ndarray:
-        return np.r_[np.zeros(self.kin.n_params), self.points0.ravel(), np.zeros(3 * self.n)]
-
-    def reprojection(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pixel residuals (k, 2) of A's and B's observations."""
-        g, X, d = self.split(x)
+    # --- residuals
+    def _b_points(self, g: np.ndarray, X: np.ndarray, d: np.ndarray) -> np.ndarray:
         scale, rots, trans = self.kin.motions(g)
-        ra = _project(self.va, self.ta, X) - self.ta.uv
         lab = self.labels
-        Y = scale * np.einsum("nij,nj->ni", rots[lab], X) + trans[lab] + d
-        rb = _project(self.vb, self.tb, Y) - self.tb.uv
+        return scale * np.einsum("nij,nj->ni", rots[lab], X) + trans[lab] + d
+
+    def pixels(self, g, X, d) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel residuals (k, 2) of A's and B's observations."""
+        ra = _project(self.va, self.ta, X)[0] - self.ta.uv
+        rb = _project(self.vb, self.tb, self._b_points(g, X, d))[0] - self.tb.uv
         return ra * self.fa[:, None], rb * self.fb[:, None]
 
-    def residuals(self, x: np.ndarray) -> np.ndarray:
-        if self.g_fixed is not None:
-            x = np.r_[self.g_fixed, x]
-        ra, rb = self.reprojection(x)
-        _, _, d = self.split(x)
-        return np.r_[ra.ravel() / self.sigma_px, rb.ravel() / self.sigma_px,
-                     d.ravel() / self.sigma_d]
+    def cost(self, g, X, d) -> float:
+        ra, rb = self.pixels(g, X, d)
+        s2 = np.r_[np.sum(ra * ra, 1), np.sum(rb * rb, 1)] / self.sigma_px ** 2
+        return float(0.5 * self.c2 * np.sum(np.log1p(s2 / self.c2))
+                     + 0.5 * np.sum(d * d) / self.sigma_d ** 2)
 
-    def sparsity(self, with_globals: bool = True) -> sparse.csr_matrix:
-        g = self.kin.n_params if with_globals else 0
-        n = self.n
-        rows, cols = [], []
-        r0 = 0
-        for tr, has_d in ((self.ta, False), (self.tb, True)):
-            k = len(tr)
-            obs_rows = r0 + 2 * np.arange(k)
-            for c in range(2):
-                r = obs_rows + c
-                for a in range(3):
-                    rows.append(r)
-                    cols.append(g + 3 * tr.point + a)
-                    if has_d:
-                        rows.append(r)
-                        cols.append(g + 3 * n + 3 * tr.point + a)
-                if has_d and g:
-                    rows.append(np.repeat(r, g))
-                    cols.append(np.tile(np.arange(g), k))
-            r0 += 2 * k
-        rows.append(r0 + np.arange(3 * n))
-        cols.append(g + 3 * n + np.arange(3 * n))
-        rows, cols = np.concatenate(rows), np.concatenate(cols)
-        return sparse.csr_matrix((np.ones(len(rows), np.int8), (rows, cols)),
-                                 shape=(r0 + 3 * n, g + 6 * n))
+    # --- normal equations
+    def normal_equations(self, g, X, d, with_globals: bool = True):
+        """Gauss-Newton blocks with Cauchy (IRLS) weights: per match the (6, 6) block of
+        (X_i, d_i) and its right-hand side, their (6, G) coupling to the globals, the globals'
+        (G, G) block and right-hand side."""
+        n, G = self.n, self.kin.n_params
+        sig = self.sigma_px
+        # A: only the points
+        pa, ja = _project(self.va, self.ta, X)
+        ra = (pa - self.ta.uv) * (self.fa / sig)[:, None]
+        JXa = (self.fa / sig)[:, None, None] * (ja @ self.va.rotations[self.ta.view])
+        wa = 1.0 / (1.0 + np.sum(ra * ra, 1) / self.c2)
+        # B: the points, the offsets and the globals
+        Y = self._b_points(g, X, d)
+        pb, jb = _project(self.vb, self.tb, Y)
+        rb = (pb - self.tb.uv) * (self.fb / sig)[:, None]
+        Jy = (self.fb / sig)[:, None, None] * (jb @ self.vb.rotations[self.tb.view])
+        scale, rots, _ = self.kin.motions(g)
+        pt = self.tb.point
+        JXb = Jy @ (scale * rots[self.labels[pt]])
+        wb = 1.0 / (1.0 + np.sum(rb * rb, 1) / self.c2)
+        H = np.zeros((n, 6, 6))
+        bp = np.zeros((n, 6))
+        np.add.at(H[:, :3, :3], self.ta.point, np.einsum("k,kai,kaj->kij", wa, JXa, JXa))
+        np.add.at(bp[:, :3], self.ta.point, -np.einsum("k,kai,ka->ki", wa, JXa, ra))
+        Jb = np.concatenate([JXb, Jy], axis=2)  # (kb, 2, 6)
+        np.add.at(H, pt, np.einsum("k,kai,kaj->kij", wb, Jb, Jb))
+        np.add.at(bp, pt, -np.einsum("k,kai,ka->ki", wb, Jb, rb))
+        H[:, 3:, 3:] += np.eye(3) / self.sigma_d ** 2
+        bp[:, 3:] -= d / self.sigma_d ** 2
+        if not with_globals:
+            return H, bp, None, None, None
+        dY = np.zeros((G, n, 3))
+        for j in range(G):
+            h = self._step(j)
+            e = np.zeros(G)
+            e[j] = h
+            dY[j] = (self._b_points(g + e, X, d) - self._b_points(g - e, X, d)) / (2 * h)
+        Jg = np.einsum("kab,jkb->kaj", Jy, dY[:, pt])  # (kb, 2, G)
+        Hpg = np.zeros((n, 6, G))
+        np.add.at(Hpg, pt, np.einsum("k,kai,kaj->kij", wb, Jb, Jg))
+        Hgg = np.einsum("k,kai,kaj->ij", wb, Jg, Jg)
+        bg = -np.einsum("k,kai,ka->i", wb, Jg, rb)
+        return H, bp, Hpg, Hgg, bg
+
+    def _step(self, j: int) -> float:
+        """Finite-difference step of global parameter j: lengths (translations, axis points)
+        scale with the points' extent, angles and log-scales do not."""
+        return self.step if j in self.kin.length_params else 1e-6
 
 
-def _project(views: Views, tracks: Tracks, X: np.ndarray) -> np.ndarray:
+def _project(views: Views, tracks: Tracks, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised image coordinates (k, 2) of the observed points and their derivative (k, 2, 3)
+    in the camera frame."""
     xc = np.einsum("oij,oj->oi", views.rotations[tracks.view], X[tracks.point]) \
         + views.translations[tracks.view]
-    z = xc[:, 2:3]
+    z = xc[:, 2]
     z = np.where(np.abs(z) < 1e-9, 1e-9, z)
-    return xc[:, :2] / z
+    jac = np.zeros((len(xc), 2, 3))
+    jac[:, 0, 0] = jac[:, 1, 1] = 1.0 / z
+    jac[:, 0, 2] = -xc[:, 0] / z ** 2
+    jac[:, 1, 2] = -xc[:, 1] / z ** 2
+    return xc[:, :2] / z[:, None], jac
 
 
-def _solve(problem: _Problem, x0: np.ndarray, config: RefineConfig, with_globals: bool):
-    if with_globals:
-        problem.g_fixed = None
-        start = x0
-    else:
-        problem.g_fixed = x0[:problem.kin.n_params]
-        start = x0[problem.kin.n_params:]
-    res = least_squares(problem.residuals, start, jac_sparsity=problem.sparsity(with_globals),
-                        loss="cauchy", f_scale=config.loss_scale, method="trf",
-                        x_scale="jac", max_nfev=config.max_evaluations, tr_solver="lsmr")
-    x = res.x if with_globals else np.r_[problem.g_fixed, res.x]
-    problem.g_fixed = None
-    return x, res
+def _solve(problem: _Problem, g: np.ndarray, X: np.ndarray, d: np.ndarray,
+           config: RefineConfig, with_globals: bool = True):
+    """Levenberg-Marquardt with the points eliminated; returns (g, X, d, cost, iterations,
+    converged)."""
+    cost = problem.cost(g, X, d)
+    lam = 1e-4
+    converged = False
+    it = 0
+    while it < config.max_iterations:
+        it += 1
+        H, bp, Hpg, Hgg, bg = problem.normal_equations(g, X, d, with_globals)
+        improved = False
+        while lam < 1e12:
+            Hd = H + lam * np.einsum("nii->ni", H)[:, :, None] * np.eye(6)
+            Hinv = np.linalg.inv(Hd)
+            if with_globals:
+                S = Hgg + lam * np.diag(np.diag(Hgg)) - np.einsum("nai,nab,nbj->ij", Hpg,
+                                                                   Hinv, Hpg)
+                rhs = bg - np.einsum("nai,nab,nb->i", Hpg, Hinv, bp)
+                dg = np.linalg.lstsq(S, rhs, rcond=None)[0]
+                dp = np.einsum("nab,nb->na", Hinv, bp - Hpg @ dg)
+            else:
+                dg = np.zeros_like(g)
+                dp = np.einsum("nab,nb->na", Hinv, bp)
+            g1, X1, d1 = g + dg, X + dp[:, :3], d + dp[:, 3:]
+            c1 = problem.cost(g1, X1, d1)
+            if np.isfinite(c1) and c1 <= cost:
+                improved = True
+                small = cost - c1 <= 1e-10 * max(cost, 1e-300)
+                g, X, d, cost = g1, X1, d1, c1
+                lam = max(lam / 10, 1e-12)
+                break
+            lam *= 10
+        if not improved or small:
+            converged = True  # no step lowers the cost any more: a minimum
+            break
+    return g, X, d, cost, it, converged
 
 
-def _marginal_covariance(jac, n_globals: int, n_points: int) -> np.ndarray:
-    """Covariance (per unit residual variance) of the global parameters with the points and
-    offsets marginalised: the inverse of the Schur complement of the information J^T J."""
-    J = sparse.csc_matrix(jac)
-    g = n_globals
-    Jg = J[:, :g].toarray()
-    H_gg = Jg.T @ Jg
-    Jp = J[:, g:]
-    H_pg = (Jp.T @ sparse.csr_matrix(Jg)).toarray()  # (6n, g)
-    H_pp = (Jp.T @ Jp).tocsr()
-    # per match: the 6 columns X_i (3) and d_i (3)
-    idx = np.stack([np.r_[3 * i:3 * i + 3, 3 * n_points + 3 * i:3 * n_points + 3 * i + 3]
-                    for i in range(n_points)]) if n_points else np.zeros((0, 6), int)
-    blocks = np.zeros((n_points, 6, 6))
-    for a in range(6):
-        for b in range(6):
-            blocks[:, a, b] = np.asarray(H_pp[idx[:, a], idx[:, b]]).ravel()
-    blocks += np.eye(6) * 1e-12 * np.maximum(1.0, np.abs(blocks).max())
-    inv = np.linalg.inv(blocks)
-    Bg = H_pg[idx]  # (n, 6, g)
-    S = H_gg - np.einsum("nai,nab,nbj->ij", Bg, inv, Bg)
-    return np.linalg.pinv(S), inv
+def _covariance(problem: _Problem, g, X, d) -> tuple[np.ndarray, np.ndarray]:
+    """Covariance of the global parameters with the points and offsets marginalised (the
+    inverse of the Schur complement of the Gauss-Newton information), and each match's (6, 6)
+    conditional covariance of (X_i, d_i)."""
+    H, _, Hpg, Hgg, _ = problem.normal_equations(g, X, d)
+    Hinv = np.linalg.inv(H)
+    S = Hgg - np.einsum("nai,nab,nbj->ij", Hpg, Hinv, Hpg)
+    return np.linalg.pinv(S), Hinv
 
 
 def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tracks_b: Tracks,
                   views_a: Views, views_b: Views, joints: list[Joint], root: int,
                   base: Similarity, n_links: int, *, scale_known: bool,
+                  points_b: np.ndarray | None = None,
                   couplings: dict[int, tuple[int, float]] | None = None,
                   config: RefineConfig = RefineConfig()) -> Refinement:  # noqa: B008
     """The joints refined by articulated bundle adjustment (see the module's docstring).
@@ -401,6 +538,9 @@ def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tr
         The matches' points in A's frame (their starting positions).
     labels : (n,) int
         Link of each match (-1: an outlier, left out).
+    points_b : (n, 3), optional
+        The matches' points in B's frame: their disagreement with the initial motions is where
+        the offsets' spread starts (else 1e-3 of the object's extent).
     tracks_a, tracks_b : Tracks
         Each match's 2D observations in A's and B's images (``point`` indexes ``points_a``).
     views_a, views_b : Views
@@ -440,49 +580,52 @@ def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tr
 
     tracks_a, tracks_b = keep(tracks_a), keep(tracks_b)
     kin = _Kinematics(joints, n_links, root, base, not scale_known, couplings)
-    problem = _Problem(kin, points_a[use], labels[use], tracks_a, tracks_b, views_a, views_b)
-    n = problem.n
+    problem = _Problem(kin, points_a[use], labels[use], tracks_a, tracks_b, views_a, views_b,
+                       config.loss_scale)
+    n, G = problem.n, kin.n_params
+    g, X, d = np.zeros(G), points_a[use].copy(), np.zeros((n, 3))
     # the noise levels to begin with: the reprojection errors of the initial model, and the
-    # matches' disagreement with their link's initial motion
-    x = problem.x0()
-    ra, rb = problem.reprojection(x)
-    problem.sigma_px = max(1.4826 * float(np.median(np.abs(np.r_[ra.ravel(), rb.ravel()]))), 0.05)
-    problem.sigma_d = max(_extent(points_a[use]) * 1e-4, 1e-12)
-    nfev, status = 0, 0
-    cov_g = None
+    # matches' disagreement with their link's initial motion (an upper bound of the offsets)
+    ra, rb = problem.pixels(g, X, d)
+    problem.sigma_px = max(1.4826 * float(np.median(np.abs(np.r_[ra.ravel(), rb.ravel()]))),
+                           MIN_SIGMA_PX)
+    floor_d = _extent(X) * 1e-7
+    if points_b is not None:
+        miss = problem._b_points(g, X, d) - np.asarray(points_b, float)[use]
+        problem.sigma_d = max(1.4826 * float(np.median(np.abs(miss))), floor_d)
+    else:
+        problem.sigma_d = max(_extent(X) * 1e-3, floor_d)
+    iterations, converged = 0, False
     for _ in range(max(1, config.rounds)):
-        x, res = _solve(problem, x, config, with_globals=True)
-        nfev += res.nfev
-        status = res.status
-        cov_g, cov_p = _marginal_covariance(res.jac, kin.n_params, n)
+        g, X, d, cost, its, converged = _solve(problem, g, X, d, config)
+        iterations += its
         # EM: the image noise from the reprojection residuals (robust), the offsets' spread from
         # their estimates and their posterior variance
-        ra, rb = problem.reprojection(x)
-        r = np.r_[ra.ravel(), rb.ravel()]
-        problem.sigma_px = max(1.4826 * float(np.median(np.abs(r))), 0.02)
-        _, _, d = problem.split(x)
-        post = np.einsum("nii->n", cov_p[:, 3:, 3:]) * problem.sigma_d ** 2
-        problem.sigma_d = max(float(np.sqrt(np.median(np.sum(d * d, axis=1) + post) / 3)),
-                              _extent(points_a[use]) * 1e-7)
-    # final covariance at the final noise levels, scaled by the reduced chi-square when above 1
-    x, res = _solve(problem, x, config, with_globals=True)
-    nfev += res.nfev
-    status = res.status
-    cov_g, _ = _marginal_covariance(res.jac, kin.n_params, n)
-    dof = max(len(res.fun) - len(x), 1)
-    chi2 = float(2 * res.cost / dof)
-    cov_g = cov_g * max(1.0, chi2)
-    cost_refined = float(res.cost)
+        _, cov_p = _covariance(problem, g, X, d)
+        ra, rb = problem.pixels(g, X, d)
+        problem.sigma_px = max(1.4826 * float(np.median(np.abs(np.r_[ra.ravel(), rb.ravel()]))),
+                               MIN_SIGMA_PX)
+        post = np.einsum("nii->n", cov_p[:, 3:, 3:])
+        # (robust: the median of |d|^2 / s_d^2, chi-squared with 3 degrees of freedom)
+        problem.sigma_d = max(float(np.sqrt(np.median(np.sum(d * d, axis=1) + post)
+                                            / CHI2_3_MEDIAN)), floor_d)
+    # the final solution and covariance at the final noise levels
+    g, X, d, cost_refined, its, converged = _solve(problem, g, X, d, config)
+    iterations += its
+    cov_g, _ = _covariance(problem, g, X, d)
+    ra, rb = problem.pixels(g, X, d)
+    s2 = np.r_[np.sum(ra * ra, 1), np.sum(rb * rb, 1)] / problem.sigma_px ** 2
+    weighted = float(np.sum(s2 / (1 + s2 / problem.c2)) + np.sum(d * d) / problem.sigma_d ** 2)
+    dof = max(2 * (len(tracks_a) + len(tracks_b)) - 3 * n - G, 1)
+    chi2 = weighted / dof
+    cov_g = cov_g * max(1.0, chi2)  # scaled by the reduced chi-square when above 1
     # the initial joints' cost at the same noise levels (points and offsets re-fitted)
-    x_init = problem.x0()
-    x_init[kin.n_params:] = x[kin.n_params:]
-    x_held, res_held = _solve(problem, x_init, config, with_globals=False)
-    cost_initial = float(res_held.cost)
-
-    g = x[:kin.n_params]
+    _, _, _, cost_initial, _, _ = _solve(problem, np.zeros(G), points_a[use].copy(),
+                                         np.zeros((n, 3)), config, with_globals=False)
+    status = "converged" if converged else f"stopped after {config.max_iterations} iterations"
     scale, rots, trans = kin.motions(g)
     refined = kin.joints_at(g, joints, scale, rots, trans)
-    converged = bool(status > 0 and np.all(np.isfinite(x)))
+    converged = bool(converged and np.all(np.isfinite(g)))
     out_joints, accepted, records = list(joints), [False] * len(joints), [None] * len(joints)
     for b in kin.blocks:
         rec = _uncertainty(b, cov_g, kin.n_params)
@@ -494,7 +637,7 @@ def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tr
                    if spread is not None else np.inf)
         same_sign = np.sign(new.motion) == np.sign(old.motion) or old.motion == 0
         if not converged:
-            verdict = f"not converged (solver status {status})"
+            verdict = f"not converged ({status})"
         elif not cost_refined < cost_initial:
             verdict = "the cost did not fall"
         elif not same_sign:
@@ -518,7 +661,7 @@ def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tr
     summary = {"points": n, "observations_a": len(tracks_a), "observations_b": len(tracks_b),
                "sigma_px": problem.sigma_px, "sigma_offset": problem.sigma_d,
                "chi2_reduced": chi2, "cost_initial": cost_initial, "cost_refined": cost_refined,
-               "evaluations": nfev, "status": int(status), "converged": converged,
+               "iterations": iterations, "converged": converged,
                "accepted": int(sum(accepted)), "seconds": time.perf_counter() - t0}
     log.info("refinement: %d points, %d + %d observations, %.2f px, offsets %.3g, cost %.1f -> "
              "%.1f, %d of %d joints accepted, %.1f s", n, len(tracks_a), len(tracks_b),
@@ -576,3 +719,26 @@ def _link_transforms(kin: _Kinematics, joints: list[Joint], accepted: list[bool]
         out[b.child] = parent @ Similarity(rj, tj, 1.0)
     return [T if T is not None else Similarity() for T in out]
 
+
+
+def map_record(record: dict, T: Similarity, joint_type: str) -> dict:
+    """A joint's refinement record (``Joint.confidence["refinement"]``) in another frame: its
+    axes and points mapped by the similarity ``T`` (a registration), its lengths scaled
+    (revolute states are angles and stay)."""
+    if not record:
+        return record
+    out = dict(record)
+    s = T.scale
+    for key in ("refined", "initial"):
+        if isinstance(out.get(key), dict):
+            f = dict(out[key])
+            f["axis_direction"] = [float(v) for v in T.rotation @ np.asarray(f["axis_direction"])]
+            f["axis_point"] = [float(v) for v in T.apply(np.asarray(f["axis_point"])[None])[0]]
+            if joint_type == "prismatic":
+                f["motion"] = f["motion"] * s
+            out[key] = f
+    if out.get("position") is not None:
+        out["position"] = out["position"] * s
+    if joint_type == "prismatic" and out.get("state") is not None:
+        out["state"] = out["state"] * s
+    return out

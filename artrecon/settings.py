@@ -190,7 +190,7 @@ RANGES: dict[str, Range | Choice] = {
     "refine.enabled": Range(0, 1, "0 or 1"),
     "refine.loss_scale": Range(0, 1000, "standard deviations", **_OPEN),
     "refine.rounds": Range(1, 100, "rounds"),
-    "refine.max_evaluations": Range(1, 100_000, "evaluations"),
+    "refine.max_iterations": Range(1, 10_000, "iterations"),
     "refine.max_change_sigma": Range(0, 1e6, "standard deviations", **_OPEN),
     # --- assign (artrecon.assign.AssignConfig)
     "assign.residual_factor": Range(0, 1000, "times the link's residual", **_OPEN),
