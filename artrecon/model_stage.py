@@ -99,7 +99,9 @@ def build_model(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work: Path, seed
         t = time.perf_counter()
         ids_a = np.r_[matches.point3D_ids_a, art.guided_ids[:, 0]]
         ids_b = np.r_[matches.point3D_ids_b, art.guided_ids[:, 1]]
-        art, refinement = refine_articulation(art, sfms, ids_a, ids_b, denses,
+        # the background anchors the base, as it did in the links' fit (when it shows the base)
+        anchor = background if art.root is not None else None
+        art, refinement = refine_articulation(art, sfms, ids_a, ids_b, denses, anchor,
                                               scale_known=poses_a is not None
                                               and poses_b is not None, config=config.refine)
         timings["refine"] = time.perf_counter() - t
@@ -157,7 +159,8 @@ def build_model(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work: Path, seed
 
 
 def refine_articulation(art: Articulation, sfms: dict, ids_a: np.ndarray, ids_b: np.ndarray,
-                        denses: dict, *, scale_known: bool, config: RefineConfig
+                        denses: dict, background=None, *, scale_known: bool,
+                        config: RefineConfig
                         ) -> tuple[Articulation, Refinement]:
     """The joints of ``art`` refined against both configurations' images
     (:func:`artrecon.refine.refine_joints`; each SfM point's track of 2D observations), and the
@@ -173,19 +176,32 @@ def refine_articulation(art: Articulation, sfms: dict, ids_a: np.ndarray, ids_b:
     denses : dict
         Each configuration's dense points (the links' points are re-assembled with the refined
         motions).
+    background : artrecon.features.CrossMatches, optional
+        The background's matches (points and SfM ids): they move with the base (the room it
+        stands in), as in the links' fit (:func:`artrecon.link_motions.anchor_base`).
     scale_known : bool
         Both configurations in one metric frame (given camera poses).
     config : RefineConfig
     """
     views_a, rows_a = views_of(sfms["a"].reconstruction)
     views_b, rows_b = views_of(sfms["b"].reconstruction)
-    tracks_a = tracks_of(sfms["a"].reconstruction, ids_a, rows_a)
-    tracks_b = tracks_of(sfms["b"].reconstruction, ids_b, rows_b)
     seg = art.segmentation
     root = art.tree.root
-    out = refine_joints(art.points_a, seg.labels, tracks_a, tracks_b, views_a, views_b,
+    points_a, points_b, labels = art.points_a, art.points_b, seg.labels
+    populations = labels  # each link's matches; the background's their own
+    if background is not None and len(background):
+        points_a = np.r_[points_a, background.points_a]
+        points_b = np.r_[points_b, background.points_b]
+        labels = np.r_[labels, np.full(len(background), root)]
+        populations = np.r_[seg.labels, np.full(len(background), seg.n_links)]
+        ids_a = np.r_[ids_a, background.point3D_ids_a]
+        ids_b = np.r_[ids_b, background.point3D_ids_b]
+    tracks_a = tracks_of(sfms["a"].reconstruction, ids_a, rows_a)
+    tracks_b = tracks_of(sfms["b"].reconstruction, ids_b, rows_b)
+    out = refine_joints(points_a, labels, tracks_a, tracks_b, views_a, views_b,
                         art.joints, root, seg.transforms[root], seg.n_links,
-                        scale_known=scale_known, points_b=art.points_b, config=config)
+                        scale_known=scale_known, points_b=points_b, populations=populations,
+                        config=config)
     seg = replace(seg, transforms=list(out.transforms))
     links = links_from_labels(denses["a"], denses["b"], art.labels_a, art.labels_b,
                               seg.transforms)

@@ -43,6 +43,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pycolmap
+from scipy import sparse
 from scipy.spatial import cKDTree
 
 from artrecon.geometry import exp_so3, skew
@@ -62,6 +63,8 @@ MIN_SIGMA_PX = 0.02
 #: How far from its predicted position (pixels) a point's keypoint is looked for in the other
 #: configuration's images (:func:`guided_tracks`): the initial joints put it within a pixel.
 GUIDED_RADIUS_PX = 3.0
+#: A Levenberg-Marquardt step that lowers the cost by less than this share of it ends the solve.
+CONVERGED_DECREASE = 1e-6
 #: Median of the chi-squared distribution with 3 degrees of freedom.
 CHI2_3_MEDIAN = 2.366
 
@@ -389,14 +392,16 @@ class _Problem:
         self.fb = views_b.focal[tracks_b.view]
         self.c2 = loss_scale ** 2
         self.sigma_px = 0.5
-        self.sigma_d = 1e-4
+        self.sigma_d = np.full(len(points), 1e-4)  # per match: its population's
         self.step = 1e-6 * max(_extent(points), 1e-12)  # finite-difference step, lengths
+        self.sum_a = _aggregator(tracks_a.point, len(points))
+        self.sum_b = _aggregator(tracks_b.point, len(points))
 
     # --- residuals
     def _b_points(self, g: np.ndarray, X: np.ndarray, d: np.ndarray) -> np.ndarray:
         scale, rots, trans = self.kin.motions(g)
         lab = self.labels
-        return scale * np.einsum("nij,nj->ni", rots[lab], X) + trans[lab] + d
+        return scale * _apply(rots[lab], X) + trans[lab] + d
 
     def pixels(self, g, X, d) -> tuple[np.ndarray, np.ndarray]:
         """Pixel residuals (k, 2) of A's and B's observations."""
@@ -408,7 +413,7 @@ class _Problem:
         ra, rb = self.pixels(g, X, d)
         s2 = np.r_[np.sum(ra * ra, 1), np.sum(rb * rb, 1)] / self.sigma_px ** 2
         return float(0.5 * self.c2 * np.sum(np.log1p(s2 / self.c2))
-                     + 0.5 * np.sum(d * d) / self.sigma_d ** 2)
+                     + 0.5 * np.sum(d * d / self.sigma_d[:, None] ** 2))
 
     # --- normal equations
     def normal_equations(self, g, X, d, with_globals: bool = True):
@@ -433,13 +438,15 @@ class _Problem:
         wb = 1.0 / (1.0 + np.sum(rb * rb, 1) / self.c2)
         H = np.zeros((n, 6, 6))
         bp = np.zeros((n, 6))
-        np.add.at(H[:, :3, :3], self.ta.point, np.einsum("k,kai,kaj->kij", wa, JXa, JXa))
-        np.add.at(bp[:, :3], self.ta.point, -np.einsum("k,kai,ka->ki", wa, JXa, ra))
+        JXaw = (JXa * wa[:, None, None]).transpose(0, 2, 1)  # (ka, 3, 2)
+        H[:, :3, :3] += self.sum_a(JXaw @ JXa)
+        bp[:, :3] -= self.sum_a(_apply(JXaw, ra))
         Jb = np.concatenate([JXb, Jy], axis=2)  # (kb, 2, 6)
-        np.add.at(H, pt, np.einsum("k,kai,kaj->kij", wb, Jb, Jb))
-        np.add.at(bp, pt, -np.einsum("k,kai,ka->ki", wb, Jb, rb))
-        H[:, 3:, 3:] += np.eye(3) / self.sigma_d ** 2
-        bp[:, 3:] -= d / self.sigma_d ** 2
+        Jbw = (Jb * wb[:, None, None]).transpose(0, 2, 1)  # (kb, 6, 2)
+        H += self.sum_b(Jbw @ Jb)
+        bp -= self.sum_b(_apply(Jbw, rb))
+        H[:, 3:, 3:] += np.eye(3) / self.sigma_d[:, None, None] ** 2
+        bp[:, 3:] -= d / self.sigma_d[:, None] ** 2
         if not with_globals:
             return H, bp, None, None, None
         dY = np.zeros((G, n, 3))
@@ -448,11 +455,11 @@ class _Problem:
             e = np.zeros(G)
             e[j] = h
             dY[j] = (self._b_points(g + e, X, d) - self._b_points(g - e, X, d)) / (2 * h)
-        Jg = np.einsum("kab,jkb->kaj", Jy, dY[:, pt])  # (kb, 2, G)
-        Hpg = np.zeros((n, 6, G))
-        np.add.at(Hpg, pt, np.einsum("k,kai,kaj->kij", wb, Jb, Jg))
-        Hgg = np.einsum("k,kai,kaj->ij", wb, Jg, Jg)
-        bg = -np.einsum("k,kai,ka->i", wb, Jg, rb)
+        Jg = Jy @ dY[:, pt].transpose(1, 2, 0)  # (kb, 2, G)
+        Hpg = self.sum_b(Jbw @ Jg)
+        Jgw = (Jg * wb[:, None, None]).reshape(-1, G)
+        Hgg = Jgw.T @ Jg.reshape(-1, G)
+        bg = -(Jgw.T @ rb.reshape(-1))
         return H, bp, Hpg, Hgg, bg
 
     def _step(self, j: int) -> float:
@@ -461,11 +468,36 @@ class _Problem:
         return self.step if j in self.kin.length_params else 1e-6
 
 
+def _apply(mats: np.ndarray, vecs: np.ndarray) -> np.ndarray:
+    """Row-wise products: (k, a, b) matrices times (k, b) vectors, (k, a)."""
+    return (mats @ vecs[:, :, None])[:, :, 0]
+
+
+def _aggregator(index: np.ndarray, n: int):
+    """A function summing (k, ...) values per ``index`` (k,) in [0, n): a sparse (n, k) sum,
+    built once per set of observations."""
+    k = len(index)
+    M = sparse.csr_matrix((np.ones(k), (index, np.arange(k))), shape=(n, k))
+
+    def total(values: np.ndarray) -> np.ndarray:
+        return np.asarray(M @ values.reshape(k, -1)).reshape((n,) + values.shape[1:])
+
+    return total
+
+
+def _median_by(index: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Each element's group median: ``index`` (n,) groups 0..k-1, ``values`` (n,)."""
+    out = np.zeros(len(values))
+    for k in np.unique(index):
+        sel = index == k
+        out[sel] = np.median(values[sel])
+    return out
+
+
 def _project(views: Views, tracks: Tracks, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Normalised image coordinates (k, 2) of the observed points and their derivative (k, 2, 3)
     in the camera frame."""
-    xc = np.einsum("oij,oj->oi", views.rotations[tracks.view], X[tracks.point]) \
-        + views.translations[tracks.view]
+    xc = _apply(views.rotations[tracks.view], X[tracks.point]) + views.translations[tracks.view]
     z = xc[:, 2]
     z = np.where(np.abs(z) < 1e-9, 1e-9, z)
     jac = np.zeros((len(xc), 2, 3))
@@ -491,19 +523,19 @@ def _solve(problem: _Problem, g: np.ndarray, X: np.ndarray, d: np.ndarray,
             Hd = H + lam * np.einsum("nii->ni", H)[:, :, None] * np.eye(6)
             Hinv = np.linalg.inv(Hd)
             if with_globals:
-                S = Hgg + lam * np.diag(np.diag(Hgg)) - np.einsum("nai,nab,nbj->ij", Hpg,
-                                                                   Hinv, Hpg)
-                rhs = bg - np.einsum("nai,nab,nb->i", Hpg, Hinv, bp)
+                flat = Hpg.reshape(-1, len(g))
+                S = Hgg + lam * np.diag(np.diag(Hgg)) - flat.T @ (Hinv @ Hpg).reshape(-1, len(g))
+                rhs = bg - flat.T @ _apply(Hinv, bp).reshape(-1)
                 dg = np.linalg.lstsq(S, rhs, rcond=None)[0]
-                dp = np.einsum("nab,nb->na", Hinv, bp - Hpg @ dg)
+                dp = _apply(Hinv, bp - Hpg @ dg)
             else:
                 dg = np.zeros_like(g)
-                dp = np.einsum("nab,nb->na", Hinv, bp)
+                dp = _apply(Hinv, bp)
             g1, X1, d1 = g + dg, X + dp[:, :3], d + dp[:, 3:]
             c1 = problem.cost(g1, X1, d1)
             if np.isfinite(c1) and c1 <= cost:
                 improved = True
-                small = cost - c1 <= 1e-10 * max(cost, 1e-300)
+                small = cost - c1 <= CONVERGED_DECREASE * max(cost, 1e-300)
                 g, X, d, cost = g1, X1, d1, c1
                 lam = max(lam / 10, 1e-12)
                 break
@@ -520,7 +552,8 @@ def _covariance(problem: _Problem, g, X, d) -> tuple[np.ndarray, np.ndarray]:
     conditional covariance of (X_i, d_i)."""
     H, _, Hpg, Hgg, _ = problem.normal_equations(g, X, d)
     Hinv = np.linalg.inv(H)
-    S = Hgg - np.einsum("nai,nab,nbj->ij", Hpg, Hinv, Hpg)
+    G = Hgg.shape[0]
+    S = Hgg - Hpg.reshape(-1, G).T @ (Hinv @ Hpg).reshape(-1, G)
     return np.linalg.pinv(S), Hinv
 
 
@@ -528,6 +561,7 @@ def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tr
                   views_a: Views, views_b: Views, joints: list[Joint], root: int,
                   base: Similarity, n_links: int, *, scale_known: bool,
                   points_b: np.ndarray | None = None,
+                  populations: np.ndarray | None = None,
                   couplings: dict[int, tuple[int, float]] | None = None,
                   config: RefineConfig = RefineConfig()) -> Refinement:  # noqa: B008
     """The joints refined by articulated bundle adjustment (see the module's docstring).
@@ -541,6 +575,9 @@ def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tr
     points_b : (n, 3), optional
         The matches' points in B's frame: their disagreement with the initial motions is where
         the offsets' spread starts (else 1e-3 of the object's extent).
+    populations : (n,) int, optional
+        Each match's population, which has its own offsets' spread (default: its link; the
+        background matches anchoring the base are another population).
     tracks_a, tracks_b : Tracks
         Each match's 2D observations in A's and B's images (``point`` indexes ``points_a``).
     views_a, views_b : Views
@@ -566,6 +603,7 @@ def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tr
     t0 = time.perf_counter()
     couplings = dict(couplings or {})
     labels = np.asarray(labels, np.int64)
+    populations = labels if populations is None else np.asarray(populations, np.int64)
     points_a = np.asarray(points_a, float)
     # matches on a link, seen often enough in both configurations
     na = np.bincount(tracks_a.point, minlength=len(points_a))
@@ -590,11 +628,12 @@ def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tr
     problem.sigma_px = max(1.4826 * float(np.median(np.abs(np.r_[ra.ravel(), rb.ravel()]))),
                            MIN_SIGMA_PX)
     floor_d = _extent(X) * 1e-7
+    pops = np.unique(populations[use], return_inverse=True)[1]
     if points_b is not None:
-        miss = problem._b_points(g, X, d) - np.asarray(points_b, float)[use]
-        problem.sigma_d = max(1.4826 * float(np.median(np.abs(miss))), floor_d)
+        miss = np.abs(problem._b_points(g, X, d) - np.asarray(points_b, float)[use])
+        problem.sigma_d = np.maximum(1.4826 * _median_by(pops, np.median(miss, axis=1)), floor_d)
     else:
-        problem.sigma_d = max(_extent(X) * 1e-3, floor_d)
+        problem.sigma_d = np.full(n, max(_extent(X) * 1e-3, floor_d))
     iterations, converged = 0, False
     for _ in range(max(1, config.rounds)):
         g, X, d, cost, its, converged = _solve(problem, g, X, d, config)
@@ -605,23 +644,28 @@ def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tr
         ra, rb = problem.pixels(g, X, d)
         problem.sigma_px = max(1.4826 * float(np.median(np.abs(np.r_[ra.ravel(), rb.ravel()]))),
                                MIN_SIGMA_PX)
+        # the offsets' spread per population by MacKay's evidence update: |d|^2 over the
+        # offsets' well-determined dimensions (gamma = 3 - tr(C_d) / s_d^2: an offset the
+        # images cannot tell from the point's own depth error counts for little), robustly
+        # (|d|^2 / s_d^2 of a well-determined offset is chi-squared with 3 degrees of freedom)
         post = np.einsum("nii->n", cov_p[:, 3:, 3:])
-        # (robust: the median of |d|^2 / s_d^2, chi-squared with 3 degrees of freedom)
-        problem.sigma_d = max(float(np.sqrt(np.median(np.sum(d * d, axis=1) + post)
-                                            / CHI2_3_MEDIAN)), floor_d)
+        gamma = np.clip(3.0 - post / problem.sigma_d ** 2, 1e-3, 3.0)
+        spread = (_median_by(pops, np.sum(d * d, axis=1))
+                  / (CHI2_3_MEDIAN * _median_by(pops, gamma) / 3.0))
+        problem.sigma_d = np.maximum(np.sqrt(spread), floor_d)
     # the final solution and covariance at the final noise levels
     g, X, d, cost_refined, its, converged = _solve(problem, g, X, d, config)
     iterations += its
     cov_g, _ = _covariance(problem, g, X, d)
     ra, rb = problem.pixels(g, X, d)
     s2 = np.r_[np.sum(ra * ra, 1), np.sum(rb * rb, 1)] / problem.sigma_px ** 2
-    weighted = float(np.sum(s2 / (1 + s2 / problem.c2)) + np.sum(d * d) / problem.sigma_d ** 2)
+    weighted = float(np.sum(s2 / (1 + s2 / problem.c2))
+                     + np.sum(d * d / problem.sigma_d[:, None] ** 2))
     dof = max(2 * (len(tracks_a) + len(tracks_b)) - 3 * n - G, 1)
     chi2 = weighted / dof
     cov_g = cov_g * max(1.0, chi2)  # scaled by the reduced chi-square when above 1
-    # the initial joints' cost at the same noise levels (points and offsets re-fitted)
-    _, _, _, cost_initial, _, _ = _solve(problem, np.zeros(G), points_a[use].copy(),
-                                         np.zeros((n, 3)), config, with_globals=False)
+    # the initial model's cost at the final noise levels (points as triangulated, no offsets)
+    cost_initial = problem.cost(np.zeros(G), points_a[use], np.zeros((n, 3)))
     status = "converged" if converged else f"stopped after {config.max_iterations} iterations"
     scale, rots, trans = kin.motions(g)
     refined = kin.joints_at(g, joints, scale, rots, trans)
@@ -638,8 +682,6 @@ def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tr
         same_sign = np.sign(new.motion) == np.sign(old.motion) or old.motion == 0
         if not converged:
             verdict = f"not converged ({status})"
-        elif not cost_refined < cost_initial:
-            verdict = "the cost did not fall"
         elif not same_sign:
             verdict = "the refined motion reverses the joint's direction"
         elif not change <= allowed:
@@ -659,13 +701,16 @@ def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tr
     # the links' motions from the joints kept
     transforms = _link_transforms(kin, out_joints, accepted, g, base, scale)
     summary = {"points": n, "observations_a": len(tracks_a), "observations_b": len(tracks_b),
-               "sigma_px": problem.sigma_px, "sigma_offset": problem.sigma_d,
+               "sigma_px": problem.sigma_px,
+               "sigma_offset": {int(p): float(problem.sigma_d[np.flatnonzero(
+                   populations[use] == p)[0]]) for p in np.unique(populations[use])},
                "chi2_reduced": chi2, "cost_initial": cost_initial, "cost_refined": cost_refined,
                "iterations": iterations, "converged": converged,
                "accepted": int(sum(accepted)), "seconds": time.perf_counter() - t0}
     log.info("refinement: %d points, %d + %d observations, %.2f px, offsets %.3g, cost %.1f -> "
              "%.1f, %d of %d joints accepted, %.1f s", n, len(tracks_a), len(tracks_b),
-             problem.sigma_px, problem.sigma_d, cost_initial, cost_refined, sum(accepted),
+             problem.sigma_px, float(np.median(problem.sigma_d)), cost_initial, cost_refined,
+             sum(accepted),
              len(joints), summary["seconds"])
     return Refinement(out_joints, transforms, accepted, records, summary)
 

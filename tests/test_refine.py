@@ -103,13 +103,16 @@ def make_object(kind: str, rng, n_per_link: int = 120):
 
 
 def problem(kind: str, seed: int = 0, n_views: int = 18, noise_px: float = 0.3,
-            per_point: int = 8, start_deg: float = 5.0, start_mm: float = 10.0):
+            per_point: int = 8, start_deg: float = 5.0, start_mm: float = 10.0,
+            offset_mm: float = 0.0):
     rng = np.random.default_rng(seed)
     points, labels, truth = make_object(kind, rng)
     n_links = labels.max() + 1
     views = ring(n_views)
     moved = motions(truth, n_links)
     points_b = np.stack([moved[k].apply(p[None])[0] for p, k in zip(points, labels, strict=True)])
+    # the B feature of a match is not quite the A feature's physical point
+    points_b = points_b + rng.normal(0, offset_mm / 1000, points_b.shape)
     tracks_a = observe(points, views, rng, noise_px, per_point)
     tracks_b = observe(points_b, views, rng, noise_px, per_point)
     start = []
