@@ -202,6 +202,8 @@ def refine_articulation(art: Articulation, sfms: dict, ids_a: np.ndarray, ids_b:
                         art.joints, root, seg.transforms[root], seg.n_links,
                         scale_known=scale_known, points_b=points_b, populations=populations,
                         config=config)
+    if not any(out.accepted):  # the joints stay, and so do the links' motions and points
+        return replace(art, joints=out.joints), out
     seg = replace(seg, transforms=list(out.transforms))
     links = links_from_labels(denses["a"], denses["b"], art.labels_a, art.labels_b,
                               seg.transforms)

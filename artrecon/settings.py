@@ -192,6 +192,7 @@ RANGES: dict[str, Range | Choice] = {
     "refine.rounds": Range(1, 100, "rounds"),
     "refine.max_iterations": Range(1, 10_000, "iterations"),
     "refine.max_change_sigma": Range(0, 1e6, "standard deviations", **_OPEN),
+    "refine.adopt": Range(0, 1, "0 or 1"),
     # --- assign (artrecon.assign.AssignConfig)
     "assign.residual_factor": Range(0, 1000, "times the link's residual", **_OPEN),
     "assign.spacing_factor": Range(0, 1000, "point spacings", **_OPEN),

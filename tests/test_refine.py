@@ -16,7 +16,9 @@ import pytest
 from artrecon.geometry import rotation_about
 from artrecon.model import Joint
 from artrecon.procrustes import Similarity
-from artrecon.refine import Tracks, Views, refine_joints
+from artrecon.refine import RefineConfig, Tracks, Views, refine_joints
+
+ADOPT = RefineConfig(adopt=True)
 
 FOCAL = 600.0
 
@@ -147,7 +149,7 @@ def test_the_refinement_recovers_joints_from_starts_5_deg_and_1_cm_off(kind):
     couplings = {1: (0, 1.0)} if kind == "coupled" else None
     before = [errors(j, t) for j, t in zip(kwargs["joints"], truth, strict=True)]
     assert all(b[0] > 4 for b in before)
-    out = refine_joints(**kwargs, couplings=couplings)
+    out = refine_joints(**kwargs, couplings=couplings, config=ADOPT)
     assert all(out.accepted), [r["verdict"] for r in out.records]
     for joint, t, rec in zip(out.joints, truth, out.records, strict=True):
         angle, position, state = errors(joint, t)
@@ -182,7 +184,7 @@ def test_the_errors_lie_within_3_sigma_over_seeds():
     for seed in range(12):
         kwargs, truth = problem("hinge", seed=seed, n_views=12, per_point=6, noise_px=0.5,
                                 offset_mm=0.1)
-        out = refine_joints(**kwargs)
+        out = refine_joints(**kwargs, config=ADOPT)
         angle, position, state = errors(out.joints[0], truth[0])
         rec = out.records[0]
         for err, sig in ((angle, rec["axis_deg"]), (position, 1000 * rec["position"]),
@@ -204,9 +206,24 @@ def test_a_refinement_beyond_the_initial_uncertainty_keeps_the_initial_joint():
     # the initial joint claims to be known to 0.01 deg (its bootstrap): the refinement must move
     # it by about 5 deg, which neither estimate allows
     kwargs["joints"][0].confidence = {"bootstrap": {"axis_spread_deg": 0.01}}
-    out = refine_joints(**kwargs)
+    out = refine_joints(**kwargs, config=ADOPT)
     assert out.accepted == [False]
     assert "beyond" in out.records[0]["verdict"]
     assert out.joints[0] is kwargs["joints"][0] or np.allclose(
         out.joints[0].axis_direction, kwargs["joints"][0].axis_direction)
 
+
+
+def test_by_default_the_joints_stay_and_the_record_holds_the_refined_figures():
+    kwargs, truth = problem("hinge", seed=4)
+    start = kwargs["joints"][0]
+    out = refine_joints(**kwargs)
+    assert out.accepted == [False] and "refine.adopt is off" in out.records[0]["verdict"]
+    kept = out.joints[0]
+    assert np.array_equal(kept.axis_direction, start.axis_direction)
+    assert kept.motion == start.motion
+    assert kept.confidence["refinement"] is out.records[0]
+    refined = Joint("revolute", out.records[0]["refined"]["axis_direction"],
+                    out.records[0]["refined"]["axis_point"], 0, 1, 0.0,
+                    out.records[0]["refined"]["motion"])
+    assert errors(refined, truth[0])[0] < 0.3 < errors(kept, truth[0])[0]
