@@ -26,20 +26,22 @@ region), which their records fix.
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict
+import time
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
 
 from artrecon import workers
 from artrecon._version import __version__
-from artrecon.articulation import articulate
+from artrecon.articulation import Articulation, articulate, links_from_labels
 from artrecon.assign import views_from_sfm
 from artrecon.errors import DegenerateError, ReconstructionError, WeakEvidenceError
 from artrecon.files import write_ply
 from artrecon.joints import KinematicTree
 from artrecon.matches_stage import Matching
 from artrecon.model import ArticulatedModel
+from artrecon.refine import RefineConfig, Refinement, refine_joints, tracks_of, views_of
 from artrecon.settings import ReconstructConfig, jsonable
 from artrecon.sfm import SfMConfig, camera_summary
 
@@ -92,6 +94,17 @@ def build_model(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work: Path, seed
         # slightly wrong given poses show up as matches that do not move together
         raise blame_poses(exc, sfms, config.sfm) from exc
     timings.update(art.timings)
+    refinement = None
+    if config.refine.enabled:
+        t = time.perf_counter()
+        ids_a = np.r_[matches.point3D_ids_a, art.guided_ids[:, 0]]
+        ids_b = np.r_[matches.point3D_ids_b, art.guided_ids[:, 1]]
+        # the background anchors the base, as it did in the links' fit (when it shows the base)
+        anchor = background if art.root is not None else None
+        art, refinement = refine_articulation(art, sfms, ids_a, ids_b, denses, anchor,
+                                              scale_known=poses_a is not None
+                                              and poses_b is not None, config=config.refine)
+        timings["refine"] = time.perf_counter() - t
     seg, links, root = art.segmentation, art.links, art.root
     np.savez(work / "matches.npz", points_a=art.points_a, points_b=art.points_b,
              point3D_ids_a=np.r_[matches.point3D_ids_a, art.guided_ids[:, 0]],
@@ -131,6 +144,8 @@ def build_model(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work: Path, seed
             "root_background_matches": len(art.anchors[root][0]) if art.anchors else 0,
             "link_matches": seg.sizes.tolist(),
             "confidence": art.confidence,
+            # the articulated bundle adjustment's figures (artrecon.refine), None when off
+            "refinement": None if refinement is None else refinement.summary,
             # every adjacent pair's figures and how clearly the tree won (artrecon.joints)
             "kinematic_tree": tree_record(art.tree),
             "dense_unassigned": {"a": int((art.labels_a < 0).sum()),
@@ -141,6 +156,58 @@ def build_model(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work: Path, seed
     log.info("model: %d links, %d joints, timings %s", len(links), len(art.joints),
              {k: round(v, 1) for k, v in timings.items()})
     return model
+
+
+def refine_articulation(art: Articulation, sfms: dict, ids_a: np.ndarray, ids_b: np.ndarray,
+                        denses: dict, background=None, *, scale_known: bool,
+                        config: RefineConfig
+                        ) -> tuple[Articulation, Refinement]:
+    """The joints of ``art`` refined against both configurations' images
+    (:func:`artrecon.refine.refine_joints`; each SfM point's track of 2D observations), and the
+    links' motions and dense points that follow from the joints kept.
+
+    Parameters
+    ----------
+    art : Articulation
+    sfms : dict
+        ``"a"``, ``"b"``: each configuration's SfM result (its pycolmap reconstruction).
+    ids_a, ids_b : (n,) int
+        SfM point ids of ``art.points_a`` / ``art.points_b``, row for row.
+    denses : dict
+        Each configuration's dense points (the links' points are re-assembled with the refined
+        motions).
+    background : artrecon.features.CrossMatches, optional
+        The background's matches (points and SfM ids): they move with the base (the room it
+        stands in), as in the links' fit (:func:`artrecon.link_motions.anchor_base`).
+    scale_known : bool
+        Both configurations in one metric frame (given camera poses).
+    config : RefineConfig
+    """
+    views_a, rows_a = views_of(sfms["a"].reconstruction)
+    views_b, rows_b = views_of(sfms["b"].reconstruction)
+    seg = art.segmentation
+    root = art.tree.root
+    points_a, points_b, labels = art.points_a, art.points_b, seg.labels
+    populations = labels  # each link's matches; the background's their own
+    if background is not None and len(background):
+        points_a = np.r_[points_a, background.points_a]
+        points_b = np.r_[points_b, background.points_b]
+        labels = np.r_[labels, np.full(len(background), root)]
+        populations = np.r_[seg.labels, np.full(len(background), seg.n_links)]
+        ids_a = np.r_[ids_a, background.point3D_ids_a]
+        ids_b = np.r_[ids_b, background.point3D_ids_b]
+    tracks_a = tracks_of(sfms["a"].reconstruction, ids_a, rows_a)
+    tracks_b = tracks_of(sfms["b"].reconstruction, ids_b, rows_b)
+    out = refine_joints(points_a, labels, tracks_a, tracks_b, views_a, views_b,
+                        art.joints, root, seg.transforms[root], seg.n_links,
+                        scale_known=scale_known, points_b=points_b, populations=populations,
+                        config=config)
+    if not any(out.accepted):  # the joints stay, and so do the links' motions and points
+        return replace(art, joints=out.joints), out
+    seg = replace(seg, transforms=list(out.transforms))
+    links = links_from_labels(denses["a"], denses["b"], art.labels_a, art.labels_b,
+                              seg.transforms)
+    return replace(art, segmentation=seg, joints=out.joints, links=links), out
 
 
 def blame_poses(err: Exception, sfms: dict, config: SfMConfig) -> Exception:

@@ -28,6 +28,7 @@ from artrecon.errors import InputError
 from artrecon.features import GuidedConfig, MatchConfig
 from artrecon.freespace import FreeSpaceConfig
 from artrecon.joints import JointConfig
+from artrecon.refine import RefineConfig
 from artrecon.segment import SegmentationConfig
 from artrecon.sfm import SfMConfig
 
@@ -185,6 +186,13 @@ RANGES: dict[str, Range | Choice] = {
     "joints.misfit_weight": Range(0, 1e6, "a weight"),
     "joints.axis_gap_weight": Range(0, 1e6, "a weight"),
     "joints.contact_margin": Range(0, 100, "a fraction of the scene size"),
+    # --- refine (artrecon.refine.RefineConfig)
+    "refine.enabled": Range(0, 1, "0 or 1"),
+    "refine.loss_scale": Range(0, 1000, "standard deviations", **_OPEN),
+    "refine.rounds": Range(1, 100, "rounds"),
+    "refine.max_iterations": Range(1, 10_000, "iterations"),
+    "refine.max_change_sigma": Range(0, 1e6, "standard deviations", **_OPEN),
+    "refine.adopt": Range(0, 1, "0 or 1"),
     # --- assign (artrecon.assign.AssignConfig)
     "assign.residual_factor": Range(0, 1000, "times the link's residual", **_OPEN),
     "assign.spacing_factor": Range(0, 1000, "point spacings", **_OPEN),
@@ -422,6 +430,7 @@ class ReconstructConfig:
     freespace: FreeSpaceConfig = field(default_factory=FreeSpaceConfig)
     confidence: ConfidenceConfig = field(default_factory=ConfidenceConfig)
     guided: GuidedConfig = field(default_factory=GuidedConfig)
+    refine: RefineConfig = field(default_factory=RefineConfig)
 
 
 def with_settings(config: ReconstructConfig, settings: dict[str, float | int | bool | str]

@@ -147,6 +147,41 @@ def test_whole_run_with_known_poses_recovers_the_hinge(rendered, reconstruction_
     assert len(lid.points) > 1000 and lid.normals is not None
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("route", ["poses", "sfm"])
+def test_the_joints_are_refined_against_the_images_with_an_uncertainty_that_covers_the_error(
+        route, request):
+    """Both routes run the articulated bundle adjustment (artrecon.refine): its record says what
+    it did, and the joint kept lies within 3 sigma of the truth by the refinement's own
+    uncertainty (the photo route's in the SfM frame aligned to the truth)."""
+    model, out = request.getfixturevalue(f"reconstruction_{route}")
+    summary = model.metadata["refinement"]
+    assert summary["converged"] and summary["points"] > 50
+    assert summary["cost_refined"] <= summary["cost_initial"]
+    assert 0.02 <= summary["sigma_px"] < 1.0  # rendered images: a fraction of a pixel
+    (j,) = model.joints
+    rec = j.confidence["refinement"]
+    assert rec["verdict"].startswith(("kept the initial joint", "the axis moved")), rec
+    assert rec["refined"]["motion"] == pytest.approx(j.motion, abs=3 * rec["state"] + 1e-9)
+    if route == "poses":
+        to_world, rot, scale = (lambda p: p), np.eye(3), 1.0
+    else:
+        S, _ = align_to_truth(out / "a" / "sparse" / "0", rendered_a(request))
+        to_world, rot, scale = S.apply, S.rotation, S.scale
+    ang, dist, dq = _joint_errors(model, to_world, rot)
+    assert ang <= 3 * rec["axis_deg"] + 1e-3, (ang, rec)
+    assert dist <= 3 * rec["position"] * scale + 1e-5, (dist, rec)
+    assert np.radians(dq) <= 3 * rec["state"] + 1e-5, (dq, rec)
+    # reloaded from model.json, the record is the same
+    again = ArticulatedModel.load(out / "model.json").joints[0].confidence["refinement"]
+    assert again["verdict"] == rec["verdict"] and again["axis_deg"] == pytest.approx(
+        rec["axis_deg"])
+
+
+def rendered_a(request):
+    return request.getfixturevalue("rendered")["a"]
+
+
 def test_merge_joins_a_link_that_barely_moves_but_keeps_a_real_joint():
     """A 0.1%-of-scene displacement is the same body; a 10%-of-scene pull is a joint."""
     rng = np.random.default_rng(4)

@@ -11,6 +11,7 @@ from artrecon.confidence import rescale_confidence
 from artrecon.geometry import rotation_angle
 from artrecon.model import ArticulatedModel
 from artrecon.procrustes import Similarity
+from artrecon.refine import map_record
 from artrecon.register._checks import _points
 
 
@@ -91,6 +92,8 @@ def apply_registration(model: ArticulatedModel, T_robot_model: Similarity) -> Ar
             j.state_b *= s
         j.residual *= s
         j.confidence = rescale_confidence(j.confidence, s)  # its lengths to metres
+        if "refinement" in j.confidence:  # its axes and lengths too (artrecon.refine)
+            j.confidence["refinement"] = map_record(j.confidence["refinement"], T, j.type)
         j.relative_transform = T @ j.relative_transform @ T_inv
     frames = {}
     for name, M in model.frames.items():

@@ -194,6 +194,10 @@ class JointRecord(_Record):
     angle_to_table_normal_true_deg: float | None = None
     confidence: dict | None = None
     """artrecon's own evidence for the estimate (artrecon.confidence)"""
+    refinement: dict | None = None
+    """the articulated bundle adjustment's verdict, 1-sigma uncertainty (``sigma_axis_deg``,
+    ``sigma_position_mm``, ``sigma_state`` in :attr:`state_error_unit`) and the errors of the
+    joint before (``initial``) and after it (``refined``) (sim.evaluate.scoring.score_refinement)"""
     links_swapped: bool | None = None
     """the model took the true child as the fixed link (the state is compared inverted)"""
     paired_by_links: bool | None = None

@@ -204,6 +204,31 @@ def pair_joints(scene: Scene, est: list, true: list,
     return sorted(out, key=lambda r: r[1])
 
 
+def score_refinement(record: dict, tj, swapped: bool, k: float) -> dict:
+    """The articulated bundle adjustment's record of one joint (artrecon.refine, in the robot
+    frame) scored: its verdict, its 1-sigma uncertainty in the gates' units (deg, mm, deg or mm
+    for the state) and the errors of the joint before and after it against the truth (the joint
+    kept is the refined one when accepted). ``k``: the state's unit per model unit."""
+    out = {"verdict": record.get("verdict"),
+           "sigma_axis_deg": record.get("axis_deg"),
+           "sigma_position_mm": (None if record.get("position") is None
+                                 else 1e3 * record["position"]),
+           "sigma_state": None if record.get("state") is None else k * record["state"]}
+    for key in ("initial", "refined"):
+        f = record.get(key)
+        if not f:
+            continue
+        u, p = np.asarray(f["axis_direction"], float), np.asarray(f["axis_point"], float)
+        motion = -f["motion"] if swapped else f["motion"]
+        out[key] = {
+            "axis_angle_deg": metrics.axis_angle_error_deg(u, tj.axis),
+            "axis_position_mm": (1e3 * metrics.line_distance(p, u, tj.point, tj.axis)
+                                 if tj.type == "revolute" else None),
+            "state_error": k * metrics.joint_state_error(tj.type, motion, tj.motion, u,
+                                                         tj.axis)}
+    return out
+
+
 def score_joints(scene: Scene, registered, link_map: dict[int, int] | None = None) -> dict:
     """Estimated joints of a registered model against the scene's moving joints.
 
@@ -248,6 +273,9 @@ def score_joints(scene: Scene, registered, link_map: dict[int, int] | None = Non
             if ej.type == tj.type:
                 row["state_error"] = k * metrics.joint_state_error(
                     tj.type, motion, tj.motion, ej.axis_direction, tj.axis)
+            refinement = (ej.confidence or {}).get("refinement")
+            if refinement and ej.type == tj.type:
+                row["refinement"] = score_refinement(refinement, tj, swapped, k)
         row["passes"] = joint_passes(row)
         rows.append(row)
     invented = [{"name": est[p].name, "type": est[p].type,
