@@ -48,9 +48,7 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-import pycolmap
 from scipy import sparse
-from scipy.spatial import cKDTree
 
 from artrecon.geometry import exp_so3, skew
 from artrecon.model import Joint
@@ -59,16 +57,13 @@ from artrecon.procrustes import Similarity
 log = logging.getLogger(__name__)
 
 __all__ = ["RefineConfig", "Views", "Tracks", "Refinement", "refine_joints", "tracks_of",
-           "views_of"]
+           "views_of", "map_record"]
 
 #: Observations per configuration a match needs to enter the problem.
 MIN_OBSERVATIONS = 2
 #: The image noise is estimated no lower than this (pixels): the synthetic images' features are
 #: no better than a few hundredths of a pixel.
 MIN_SIGMA_PX = 0.02
-#: How far from its predicted position (pixels) a point's keypoint is looked for in the other
-#: configuration's images (:func:`guided_tracks`): the initial joints put it within a pixel.
-GUIDED_RADIUS_PX = 3.0
 #: A Levenberg-Marquardt step that lowers the cost by less than this share of it ends the solve.
 CONVERGED_DECREASE = 1e-6
 #: Median of the chi-squared distribution with 3 degrees of freedom.
@@ -178,91 +173,6 @@ def tracks_of(reconstruction, point_ids, rows: dict[int, int]) -> Tracks:
         sel = cams == cid
         uv[sel] = reconstruction.cameras[int(cid)].cam_from_img(xy[sel])
     return Tracks(np.asarray(point, np.int64), np.asarray(view, np.int64), uv)
-
-
-@dataclass(frozen=True)
-class ImageFeatures:
-    """One configuration's keypoints per view (row of :func:`views_of`): normalised image
-    coordinates (k, 2), pixels (k, 2) and unit SIFT descriptors (k, 128), and each camera's image
-    size and its projection (pycolmap Camera, for the predicted points' pixels)."""
-
-    uv: list
-    xy: list
-    desc: list
-    cameras: list
-
-
-def image_features(reconstruction, database_path, rows: dict[int, int]) -> ImageFeatures:
-    """Every keypoint of the registered images (:class:`ImageFeatures`), from the SfM database."""
-    n = len(rows)
-    uv, xy, desc, cams = [None] * n, [None] * n, [None] * n, [None] * n
-    with pycolmap.Database.open(str(database_path)) as db:
-        for iid, r in rows.items():
-            image = reconstruction.images[iid]
-            camera = reconstruction.cameras[image.camera_id]
-            kp = np.asarray(db.read_keypoints(iid), float).reshape(-1, 6)[:, :2] \
-                if db.exists_keypoints(iid) else np.zeros((0, 2))
-            d = db.read_descriptors(iid)
-            d = np.asarray(d.data if hasattr(d, "data") else d, np.float32).reshape(len(kp), -1)
-            d /= np.linalg.norm(d, axis=1, keepdims=True) + 1e-9
-            xy[r], desc[r], cams[r] = kp, d, camera
-            uv[r] = camera.cam_from_img(kp) if len(kp) else np.zeros((0, 2))
-    return ImageFeatures(uv, xy, desc, cams)
-
-
-def guided_tracks(points: np.ndarray, descriptors: np.ndarray, views: Views,
-                  features: ImageFeatures, *, radius_px: float = GUIDED_RADIUS_PX,
-                  min_similarity: float = 0.85, margin: float = 0.03) -> Tracks:
-    """2D observations of points the other configuration saw, found in this configuration's
-    images where their predicted positions fall: in each view, the keypoint within
-    ``radius_px`` of the prediction whose descriptor is most like the point's (cosine similarity
-    at least ``min_similarity``, ahead of the next keypoint there by ``margin``).
-
-    Parameters
-    ----------
-    points : (n, 3)
-        The points' predicted positions in this configuration's frame (their link's motion
-        applied).
-    descriptors : (n, 128)
-        Their unit descriptors (the mean of their tracks',
-        :class:`artrecon.features.PointDescriptors`).
-    views : Views
-    features : ImageFeatures
-    """
-    point, view, uv = [], [], []
-    for v in range(len(views.rotations)):
-        kp = features.xy[v]
-        if kp is None or len(kp) == 0 or len(points) == 0:
-            continue
-        xc = points @ views.rotations[v].T + views.translations[v]
-        front = np.flatnonzero(xc[:, 2] > 0)
-        if len(front) == 0:
-            continue
-        cam = features.cameras[v]
-        px = np.asarray(cam.img_from_cam(xc[front], False), float).reshape(-1, 2)
-        inside = ((px[:, 0] >= 0) & (px[:, 1] >= 0) & (px[:, 0] < cam.width)
-                  & (px[:, 1] < cam.height))
-        front, px = front[inside], px[inside]
-        if len(front) == 0:
-            continue
-        dist, idx = cKDTree(kp).query(px, k=4, distance_upper_bound=radius_px)
-        near = idx < len(kp)
-        sim = np.full(idx.shape, -np.inf)
-        rows_, cols_ = np.nonzero(near)
-        sim[rows_, cols_] = np.einsum("kd,kd->k", features.desc[v][idx[rows_, cols_]],
-                                      descriptors[front[rows_]])
-        order = np.argsort(-sim, axis=1)
-        best = np.take_along_axis(sim, order[:, :1], 1)[:, 0]
-        second = np.take_along_axis(sim, order[:, 1:2], 1)[:, 0]
-        # a lone keypoint in reach has no second (-inf): its margin is infinite
-        ok = (best >= min_similarity) & ((second == -np.inf) | (best - second >= margin))
-        k_best = np.take_along_axis(idx, order[:, :1], 1)[:, 0]
-        for i in np.flatnonzero(ok):
-            point.append(front[i])
-            view.append(v)
-            uv.append(features.uv[v][k_best[i]])
-    return Tracks(np.asarray(point, np.int64), np.asarray(view, np.int64),
-                  np.asarray(uv, float).reshape(-1, 2))
 
 
 # --------------------------------------------------------------------------- the kinematic model
