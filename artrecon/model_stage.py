@@ -16,9 +16,12 @@ the run's work folder (which :func:`artrecon.reconstruct.reconstruct` publishes 
 and the :class:`artrecon.model.ArticulatedModel` it returns (saved as ``model.json``).
 
 Steps: :func:`artrecon.articulation.articulate` (links, base, dense labels, kinematic tree,
-joints, their evidence), then the model with its metadata. Of the settings, this stage reads
-the segmentation's, guided matching's, joints', assignment's, free space's and confidence's,
-which may differ from the run that matched (``segmentation.covariances`` excepted: whether the
+joints, their evidence), the joints' articulated bundle adjustment against both configurations'
+images (:func:`refine_articulation`, ``refine.*``: each joint's uncertainty and refined figures
+in ``Joint.confidence["refinement"]``; the refined figures replace the joint only with
+``refine.adopt``), then the model with its metadata. Of the settings, this stage reads the
+segmentation's, guided matching's, joints', assignment's, free space's, confidence's and
+refinement's, which may differ from the run that matched (``segmentation.covariances`` excepted: whether the
 covariances were computed is the matches stage's), and some of the configurations' (sfm,
 region), which their records fix.
 """
