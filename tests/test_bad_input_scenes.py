@@ -153,3 +153,13 @@ def test_unknown_scene(tmp_path, capsys, monkeypatch, scene, needle):
     assert code == 2 and needle in err
     code, err = _capture(tmp_path, capsys, scene, "--config", "a", "--out", tmp_path / "a")
     assert code == 2 and needle in err
+
+
+def test_a_scene_copied_without_its_stage_is_told_how_to_make_its_folder_whole(
+        tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    text = (SCENES / "pliers.xml").read_text().replace('file="assets/', f'file="{SCENES}/assets/')
+    (tmp_path / "s.xml").write_text(text)  # includes stage.xml, which is not beside it
+    code, err = _evaluate(tmp_path, capsys, tmp_path / "s.xml", "--out", tmp_path / "ev")
+    assert code == 2 and "stage that is not beside it" in err
+    assert "self-contained" in err and "sim.author" in err

@@ -65,9 +65,11 @@ def _missing_file_fix(path: Path, msg: str) -> str:
     stages = sorted(STAGE_FILES.values())
     if any(f"'{name}'" in msg or f"/{name}'" in msg for name in stages) \
             and not (path.parent / "stage.xml").is_file():
-        return (f"the scene includes a stage that is not beside it; include the bundled one by "
-                f"its absolute path, <include file=\"{stage_file()}\"/> (or "
-                f"{stage_file('panda')} for the Panda), as `python -m sim.author` writes scenes")
+        return ("the scene includes a stage that is not beside it; make its folder "
+                "self-contained as `python -m sim.author import` writes scenes (a copy of the "
+                "stage, its assets and the arm beside the scene: sim.author.stage.stage_copy), "
+                f"or, for this clone only, include the bundled one by its absolute path, "
+                f"<include file=\"{stage_file()}\"/> (or {stage_file('panda')} for the Panda)")
     if "robots" in msg:
         return ("MuJoCo 4.0 looks for the stage's arm (<model file=\"../robots/...\">) from the "
                 "working directory first and, for a stage included from another folder, "
