@@ -21,9 +21,9 @@ images (:func:`refine_articulation`, ``refine.*``: each joint's uncertainty and 
 in ``Joint.confidence["refinement"]``; the refined figures replace the joint only with
 ``refine.adopt``), then the model with its metadata. Of the settings, this stage reads the
 segmentation's, guided matching's, joints', assignment's, free space's, confidence's and
-refinement's, which may differ from the run that matched (``segmentation.covariances`` excepted: whether the
-covariances were computed is the matches stage's), and some of the configurations' (sfm,
-region), which their records fix.
+refinement's, which may differ from the run that matched (``segmentation.covariances``
+excepted: whether the covariances were computed is the matches stage's), and some of the
+configurations' (sfm, region), which their records fix.
 """
 
 from __future__ import annotations

@@ -85,10 +85,13 @@ class ListOf:
     """The range of each value."""
     length: int | None = None
     """How many values the field takes (None: one or more)."""
+    may_be_empty: bool = False
+    """The field may hold no value, given as ``none`` (``--set views.top_elevations_deg=none``)."""
 
     def text(self) -> str:
         count = "one or more values" if self.length is None else f"{self.length} values"
-        return f"{count} separated by commas, each {self.item.text()}"
+        empty = " (or none)" if self.may_be_empty else ""
+        return f"{count} separated by commas, each {self.item.text()}{empty}"
 
 
 def _num(x) -> str:
@@ -336,6 +339,9 @@ def check_setting(key: str, value, default,
 def _check_list(key: str, value, default: tuple, row: ListOf) -> tuple:
     """:func:`check_setting` of a list setting: every value in ``row.item``, as many as
     ``row.length``, converted to the kind of the default's values."""
+    if row.may_be_empty and (isinstance(value, str) and value.strip().lower() == "none"
+                             or isinstance(value, (list, tuple)) and len(value) == 0):
+        return ()
     if isinstance(value, str):
         parts = [part.strip() for part in value.split(",")]
     elif isinstance(value, (list, tuple)):

@@ -92,7 +92,8 @@ RANGES: dict[str, Range | ListOf] = {
     "views.elevations_deg": ListOf(Range(*ELEVATION_LIMITS_DEG, "degrees above the object's "
                                          "centre, a full ring each")),
     "views.top_elevations_deg": ListOf(Range(*ELEVATION_LIMITS_DEG, "degrees above the "
-                                             "object's centre, a top ring each")),
+                                             "object's centre, a top ring each"),
+                                       may_be_empty=True),
     "views.fill_range": ListOf(Range(0.05, 1, "a share of the shorter image side: low, high"),
                                length=2),
     "views.roll_candidates_deg": ListOf(Range(-180, 180, "degrees about the optical axis, "

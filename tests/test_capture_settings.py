@@ -285,3 +285,16 @@ def test_check_setting_names_the_bad_value_of_a_list_and_its_range(value, proble
     assert problem in str(info.value)
     assert str(info.value).endswith("x.values takes 2 values separated by commas, each a value "
                                     "in [0, 10], default 3,4")
+
+
+def test_no_top_ring_is_set_as_none_and_reaches_the_view_plan():
+    ev = cli.config_from_args(cli.parser().parse_args(
+        ["pliers", "--set", "views.top_elevations_deg=none"]))
+    assert ev.view_plan() == ViewPlanConfig(top_elevations_deg=())
+    assert stages._settings_inputs(ev) == {"capture_settings": {"views.top_elevations_deg": []}}
+    # a list that may not be empty still refuses none, and says what it takes
+    with pytest.raises(InputError) as info:
+        cli.config_from_args(cli.parser().parse_args(
+            ["pliers", "--set", "views.elevations_deg=none"]))
+    assert "value 1 (none) is not a number" in str(info.value)
+    assert "(or none)" not in str(info.value)
