@@ -201,10 +201,11 @@ def refine_articulation(art: Articulation, sfms: dict, ids_a: np.ndarray, ids_b:
         ids_b = np.r_[ids_b, background.point3D_ids_b]
     tracks_a = tracks_of(sfms["a"].reconstruction, ids_a, rows_a)
     tracks_b = tracks_of(sfms["b"].reconstruction, ids_b, rows_b)
-    out = refine_joints(points_a, labels, tracks_a, tracks_b, views_a, views_b,
-                        art.joints, root, seg.transforms[root], seg.n_links,
-                        scale_known=scale_known, points_b=points_b, populations=populations,
-                        config=config)
+    with workers.single_threaded():  # small products; one thread, the same sums every run
+        out = refine_joints(points_a, labels, tracks_a, tracks_b, views_a, views_b,
+                            art.joints, root, seg.transforms[root], seg.n_links,
+                            scale_known=scale_known, points_b=points_b, populations=populations,
+                            config=config)
     if not any(out.accepted):  # the joints stay, and so do the links' motions and points
         return replace(art, joints=out.joints), out
     seg = replace(seg, transforms=list(out.transforms))

@@ -338,3 +338,25 @@ def test_culling_and_constant_light_loops_leave_every_pixel_as_pyrender_draws_it
         np.testing.assert_array_equal(f.color, plain.color)
         np.testing.assert_array_equal(f.depth, plain.depth)
         np.testing.assert_array_equal(f.labels, plain.labels)
+
+
+def test_a_ctrl_c_inside_an_opengl_calls_arguments_is_an_interrupt(monkeypatch):
+    """PyOpenGL converts a call's arguments in Python; a SIGINT landing there surfaced as
+    ctypes.ArgumentError (seen in CI: an interrupted capture ended in a traceback). The renderer
+    turns it back into KeyboardInterrupt; any other ArgumentError stays what it is."""
+    import ctypes
+
+    import pyrender
+
+    from sim.render import context
+
+    renderer = object.__new__(context._Renderer)
+    renderer._program_cache = None
+    for message, expected in (("argument 3: KeyboardInterrupt: ", KeyboardInterrupt),
+                              ("argument 1: TypeError: wrong type", ctypes.ArgumentError)):
+        def fail(self, scene, flags, seg_node_map=None, message=message):
+            raise ctypes.ArgumentError(message)
+
+        monkeypatch.setattr(pyrender.renderer.Renderer, "render", fail)
+        with pytest.raises(expected):
+            renderer.render(None, 0)

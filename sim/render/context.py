@@ -4,6 +4,7 @@ nobody reads left out, and the colour pass's shader (see :mod:`sim.render`)."""
 from __future__ import annotations
 
 import atexit
+import ctypes
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,14 @@ from pyrender.shader_program import ShaderProgramCache
 
 #: The colour pass's fragment shader (see :mod:`sim.render`).
 LAMBERT_SHADER = Path(__file__).resolve().parents[1] / "shaders" / "mesh_lambert.frag"
+
+
+def interrupt_of(err: ctypes.ArgumentError) -> KeyboardInterrupt | None:
+    """The Ctrl-C inside an OpenGL call's argument conversion, else None: PyOpenGL converts the
+    arguments in Python (numpy to ctypes), and a SIGINT landing there reaches the caller as
+    ``ctypes.ArgumentError('argument 3: KeyboardInterrupt: ...')``, which no interrupt handler
+    would catch (the capture then ended in a traceback instead of its one line)."""
+    return KeyboardInterrupt() if "KeyboardInterrupt" in str(err) else None
 
 
 class LambertShaderCache(ShaderProgramCache):
@@ -81,7 +90,10 @@ class _Renderer(pyrender.renderer.Renderer):
             self._program_cache.light_counts = (
                 (len(scene.directional_light_nodes), len(scene.spot_light_nodes),
                  len(scene.point_light_nodes)) if self.constant_light_loops else None)
-        return super().render(scene, flags, seg_node_map)
+        try:
+            return super().render(scene, flags, seg_node_map)
+        except ctypes.ArgumentError as err:
+            raise interrupt_of(err) or err from err
 
     def _read_main_framebuffer(self, scene, flags):
         if not flags & COLOUR_ONLY or flags & (pyrender.RenderFlags.DEPTH_ONLY
