@@ -97,11 +97,12 @@ def build_model(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work: Path, seed
         # slightly wrong given poses show up as matches that do not move together
         raise blame_poses(exc, sfms, config.sfm) from exc
     timings.update(art.timings)
+    # SfM point ids of the matches the links were fitted to (the guided ones appended)
+    ids_a = np.r_[matches.point3D_ids_a, art.guided_ids[:, 0]]
+    ids_b = np.r_[matches.point3D_ids_b, art.guided_ids[:, 1]]
     refinement = None
     if config.refine.enabled:
         t = time.perf_counter()
-        ids_a = np.r_[matches.point3D_ids_a, art.guided_ids[:, 0]]
-        ids_b = np.r_[matches.point3D_ids_b, art.guided_ids[:, 1]]
         # the background anchors the base, as it did in the links' fit (when it shows the base)
         anchor = background if art.root is not None else None
         art, refinement = refine_articulation(art, sfms, ids_a, ids_b, denses, anchor,
@@ -110,8 +111,7 @@ def build_model(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work: Path, seed
         timings["refine"] = time.perf_counter() - t
     seg, links, root = art.segmentation, art.links, art.root
     np.savez(work / "matches.npz", points_a=art.points_a, points_b=art.points_b,
-             point3D_ids_a=np.r_[matches.point3D_ids_a, art.guided_ids[:, 0]],
-             point3D_ids_b=np.r_[matches.point3D_ids_b, art.guided_ids[:, 1]],
+             point3D_ids_a=ids_a, point3D_ids_b=ids_b,
              votes=np.r_[matches.votes, np.zeros(len(art.guided_ids), np.int64)],
              labels=seg.labels, background_a=background.points_a,
              background_b=background.points_b)

@@ -50,7 +50,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy import sparse
 
-from artrecon.geometry import exp_so3, skew
+from artrecon.geometry import exp_so3, rotation_about
 from artrecon.model import Joint
 from artrecon.procrustes import Similarity
 
@@ -217,8 +217,8 @@ class _Kinematics:
                 self.length_params |= {offset + 2, offset + 3}
             elif leader is None:
                 self.length_params.add(offset + 2)
-            offset += (4 if jt.type == "revolute" else 2) + (0 if leader is not None else 1)
             self.blocks.append(block)
+            offset = self.params(block).stop
         self.n_params = offset
         self._by_index = {b.index: b for b in self.blocks}
 
@@ -249,14 +249,18 @@ class _Kinematics:
         for b in self.blocks:
             u, q, v = self.joint(g, b)
             if b.type == "revolute":
-                K = skew(u)
-                rj = np.eye(3) + np.sin(v) * K + (1 - np.cos(v)) * K @ K
+                rj = rotation_about(u, v)
                 tj = q - rj @ q
             else:
                 rj, tj = np.eye(3), v * u
             rots[b.child] = rots[b.parent] @ rj
             trans[b.child] = scale * rots[b.parent] @ tj + trans[b.parent]
         return scale, rots, trans
+
+    def params(self, block: _JointBlock) -> slice:
+        """The global parameters of one joint (offsets from its initial figures)."""
+        count = (4 if block.type == "revolute" else 2) + (0 if block.leader is not None else 1)
+        return slice(block.offset, block.offset + count)
 
     def joints_at(self, g: np.ndarray, initial: list[Joint], scale: float,
                   rots: np.ndarray, trans: np.ndarray) -> list[Joint]:
@@ -630,8 +634,15 @@ def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tr
         joint = new if ok else old
         joint.confidence["refinement"] = rec
         out_joints[b.index] = joint
-    # the links' motions from the joints kept
-    transforms = _link_transforms(kin, out_joints, accepted, g, base, scale)
+    # the links' motions from the joints kept: the refined base, the joints not kept at their
+    # initial figures (their parameters are offsets from them)
+    kept = g.copy()
+    for b in kin.blocks:
+        if not accepted[b.index]:
+            kept[kin.params(b)] = 0.0
+    scale_kept, rots_kept, trans_kept = kin.motions(kept)
+    transforms = [Similarity(r, t, scale_kept) for r, t in zip(rots_kept, trans_kept,
+                                                                strict=True)]
     summary = {"points": n, "observations_a": len(tracks_a), "observations_b": len(tracks_b),
                "sigma_px": float(np.median(np.r_[problem.sig_a, problem.sig_b])),
                "sigma_offset": {int(p): float(problem.sigma_d[np.flatnonzero(
@@ -675,28 +686,6 @@ def _uncertainty(b: _JointBlock, cov: np.ndarray, n_params: int) -> dict:
     else:
         rec["state"] = None
     return rec
-
-
-def _link_transforms(kin: _Kinematics, joints: list[Joint], accepted: list[bool],
-                     g: np.ndarray, base: Similarity, scale: float) -> list[Similarity]:
-    """Each link's A -> B motion: the refined base's, composed down the tree with each joint kept
-    (refined or initial)."""
-    _, rots, trans = kin.motions(g)
-    out: list[Similarity | None] = [None] * kin.n_links
-    out[kin.root] = Similarity(rots[kin.root], trans[kin.root], scale)
-    for b in kin.blocks:
-        jt = joints[b.index]
-        parent = out[b.parent]
-        if jt.type == "revolute":
-            K = skew(jt.axis_direction)
-            v = jt.motion
-            rj = np.eye(3) + np.sin(v) * K + (1 - np.cos(v)) * K @ K
-            tj = jt.axis_point - rj @ jt.axis_point
-        else:
-            rj, tj = np.eye(3), jt.motion * jt.axis_direction
-        out[b.child] = parent @ Similarity(rj, tj, 1.0)
-    return [T if T is not None else Similarity() for T in out]
-
 
 
 def map_record(record: dict, T: Similarity, joint_type: str) -> dict:
