@@ -42,7 +42,11 @@ own cues resolve (the two fit thresholds plus the photo patch's width), or where
 is silent (neither motion lands the point on the other configuration's surface: 678 points of
 cabinet_door_only in B, low on the cabinet, where the evidence was a tie): there the point's
 evidence cannot decide and the smoothness must; elsewhere its evidence decides alone, as without
-the table.
+the table. A silence is a tie only when link k's is as telling as the base's: where k moves the
+point behind what the other configuration saw (hidden: its lack of fit says nothing) and the base
+leaves it in view on no surface of the base, the point leans to k (chest's drawer pulled out in
+B: its floor just outside the carcass, next to the table, went to the carcass in the second pass,
+and 1476 points of the floor inside with it; B's accuracy 0.921, 0.992 without).
 
 The geometric fit runs twice. First ``q`` need only land on B's surface; that is fooled where
 links touch or stack (the lower jaw of closed pliers under the upper one: a point of one moved by
@@ -481,7 +485,12 @@ class _Evidence:
             b = self.base_link
             # the point's cues cannot tell k from the base: the motions move it alike, or the
             # geometric fit is silent (neither lands it on the other configuration's surface)
-            alike = self.like_base | (~fits & ~fits[b])
+            # and k's silence is no less telling than the base's. Where k's counterpart is
+            # hidden (its lack of fit says nothing) and the base's in view, the cues lean to k:
+            # no tie (chest's drawer floor pulled out in B: under the carcass at A by the
+            # drawer's motion, where A's cameras saw nothing by the base's)
+            silent = ~fits & ~fits[b] & ~(self.hidden & ~self.hidden[b])
+            alike = self.like_base | silent
             U = U + self.config.smoothness * self.static_edges[None, :] \
                 * (np.arange(self.K)[:, None] != b) * alike
         log.debug("assign: %d points, fit by one link %.0f%%, several %.0f%%, none %.0f%%; "

@@ -285,6 +285,44 @@ def test_free_space_label_for_a_hidden_counterpart():
     assert np.mean(lab == 1) > 0.95
 
 
+def test_table_is_no_tie_where_only_the_other_links_counterpart_is_hidden():
+    """Chest's drawer pulled out in B: its floor just outside the carcass has static neighbours
+    (what moves as the base does). Moved back by the drawer's motion it lies under the base slab
+    in A (hidden: its lack of fit says nothing); left where it is, A's camera saw the place empty
+    (the base's counterpart in view, on no surface of A). Neither lands on A's surface, yet the
+    cues are no tie, and the static neighbours must not pull the floor to the base (they did:
+    chest's drawer floor in B, 1476 points, went to the carcass)."""
+    T = _camera(0.0, 0.0, height=0.6)
+    K = np.array([[F, 0, W / 2], [0, F, H / 2], [0, 0, 1]])
+    rng = np.random.default_rng(3)
+    table = np.c_[rng.uniform(-0.2, 0.2, 4000), rng.uniform(-0.1, 0.1, 4000), np.zeros(4000)]
+    slab = np.c_[rng.uniform(-0.2, 0.0, 2000), rng.uniform(-0.1, 0.1, 2000),
+                 np.full(2000, 0.05)]
+    view = CameraView(K, T, np.zeros((H, W), np.float32))
+    surf_a = _Surface([view], np.r_[table[table[:, 0] > 0], slab], cell=4)
+    X, Y = np.meshgrid(np.arange(0.02, 0.08, 0.002), np.arange(-0.03, 0.031, 0.002))
+    src = np.c_[X.ravel(), Y.ravel(), np.full(X.size, 0.03)]
+    # static points beside the floor, at its height (the carcass's side walls' lower edge)
+    Xs, Ys = np.meshgrid(np.arange(0.02, 0.08, 0.001),
+                         np.r_[-0.036, -0.034, -0.032, 0.032, 0.034, 0.036])
+    static = np.c_[Xs.ravel(), Ys.ravel(), np.full(Xs.size, 0.03)]
+    stay = Similarity(np.eye(3), np.zeros(3), 1.0)
+    back = Similarity(np.eye(3), np.array([-0.1, 0.0, 0.0]), 1.0)
+    Xd, Yd = np.meshgrid(np.arange(0.3, 0.4, 0.002), np.arange(-0.05, 0.05, 0.002))
+    dst = np.c_[Xd.ravel(), Yd.ravel(), np.zeros(Xd.size)]  # no fit, 2 mm apart
+    args = (src, np.tile([0, 0, 1.0], (len(src), 1)), dst, [stay, back], [1e-4, 1e-4],
+            np.array([[0.0, 0.0, 0.03], [0.1, 0.0, 0.03]]), np.array([0, 1]), surf_a, surf_a,
+            AssignConfig(cost_photo=0.0), static, 0)
+    ev = _Evidence(*args)
+    assert ev.hidden[1].all() and not ev.hidden[0].any() and not ev.fits_any.any()
+    assert (ev.static_edges > 0).sum() >= 2 * X.shape[1]  # both long edges touch them
+    assert (ev.label() == 1).all()
+    # the failure this prevents: counted as a tie, the static edges pull more than a row's
+    # worth of the floor to the base
+    ev.like_base[1] = True
+    assert (ev.label() == 0).sum() > X.shape[1]
+
+
 def test_potts_smoothing_removes_isolated_flips():
     """A chain of points, labels 0 then 1, with isolated noisy unaries: the Potts term restores
     the two runs and keeps the boundary."""
