@@ -30,14 +30,14 @@ import numpy as np
 from artrecon._version import __version__
 from artrecon.articulation import JointSet, Links, find_joints
 from artrecon.diagnosis import blame_poses
-from artrecon.errors import DegenerateError, ReconstructionError, WeakEvidenceError
+from artrecon.errors import DegenerateError, WeakEvidenceError
 from artrecon.files import read_json
 from artrecon.joints import KinematicTree
 from artrecon.model import joint_from_dict, joint_to_dict
 from artrecon.stage_record import (
     check_record,
     inputs_digest,
-    read_record,
+    record_of,
     stage_settings,
     write_stage,
 )
@@ -100,17 +100,10 @@ def check_joints(folder: Path, links_digest: str, config, seed: int, *, restart:
 def load_joints(folder: Path, record: dict | None = None) -> JointSet:
     """The tree and joints of a folder written by :func:`run_joints` (``record``: its record,
     already checked by :func:`check_joints`; without it, read, the files trusted).
-
-    Raises
-    ------
-    ReconstructionError
-        No record, or one of another format.
+    (ReconstructionError: no record, or one of another format.)
     """
     folder = Path(folder)
-    if record is None:
-        record = read_record(folder, RECORD, FORMAT, "joints", "reconstruct again",
-                             error=ReconstructionError)
-    return _read_joints(folder, record)
+    return _read_joints(folder, record_of(folder, record, RECORD, FORMAT, "joints"))
 
 
 def _read_joints(folder: Path, record: dict) -> JointSet:

@@ -41,7 +41,7 @@ from artrecon._version import __version__
 from artrecon.articulation import Links, find_links, links_from_labels
 from artrecon.assign import views_from_sfm
 from artrecon.diagnosis import blame_poses
-from artrecon.errors import DegenerateError, ReconstructionError
+from artrecon.errors import DegenerateError
 from artrecon.files import ply_bytes
 from artrecon.procrustes import Similarity
 from artrecon.segment import Segmentation
@@ -49,7 +49,7 @@ from artrecon.stage_record import (
     check_record,
     inputs_digest,
     npz_bytes,
-    read_record,
+    record_of,
     stage_settings,
     write_stage,
 )
@@ -155,17 +155,10 @@ def load_links(folder: Path, confs: dict, record: dict | None = None) -> Links:
     ``confs`` (the configurations they were made from). ``record``: the folder's record,
     already checked (:func:`check_links`); without it the record is read (its files are
     trusted: check them first when the folder comes from elsewhere).
-
-    Raises
-    ------
-    ReconstructionError
-        No record, or one of another format.
+    (ReconstructionError: no record, or one of another format.)
     """
     folder = Path(folder)
-    if record is None:
-        record = read_record(folder, RECORD, FORMAT, "links", "reconstruct again",
-                             error=ReconstructionError)
-    return _read_links(folder, record, confs)
+    return _read_links(folder, record_of(folder, record, RECORD, FORMAT, "links"), confs)
 
 
 def fitted_matches(folder: Path) -> dict:

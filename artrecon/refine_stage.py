@@ -35,7 +35,6 @@ import numpy as np
 from artrecon import workers
 from artrecon._version import __version__
 from artrecon.articulation import JointSet, Links, links_from_labels
-from artrecon.errors import ReconstructionError
 from artrecon.files import ply_bytes, read_json
 from artrecon.model import joint_from_dict, joint_to_dict
 from artrecon.procrustes import Similarity
@@ -43,7 +42,7 @@ from artrecon.refine import RefineConfig, Refinement, refine_joints, tracks_of, 
 from artrecon.stage_record import (
     check_record,
     inputs_digest,
-    read_record,
+    record_of,
     stage_settings,
     write_stage,
 )
@@ -179,17 +178,10 @@ def check_refine(folder: Path, joints_digest: str, config, seed: int, *, restart
 def load_refine(folder: Path, record: dict | None = None) -> Refined:
     """What a folder written by :func:`run_refine` holds (``record``: its record, already
     checked by :func:`check_refine`; without it, read, the files trusted).
-
-    Raises
-    ------
-    ReconstructionError
-        No record, or one of another format.
+    (ReconstructionError: no record, or one of another format.)
     """
     folder = Path(folder)
-    if record is None:
-        record = read_record(folder, RECORD, FORMAT, "refined joints", "reconstruct again",
-                             error=ReconstructionError)
-    return _read_refine(folder, record)
+    return _read_refine(folder, record_of(folder, record, RECORD, FORMAT, "refined joints"))
 
 
 def _read_refine(folder: Path, record: dict) -> Refined:

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from artrecon._version import __version__
-from artrecon.errors import InputError
+from artrecon.errors import InputError, ReconstructionError
 from artrecon.files import read_json, write_bytes_atomic, write_json_atomic
 
 
@@ -90,6 +90,16 @@ def read_record(folder: Path, record_name: str, fmt: str, what: str, restart: st
         got = record.get("format") if isinstance(record, dict) else None
         raise error(f"{path}: format {got!r}, this artrecon reads {fmt!r}; {restart}")
     return record
+
+
+def record_of(folder: Path, record: dict | None, record_name: str, fmt: str, what: str) -> dict:
+    """``record`` when given (the folder's record, already checked), else the folder's record
+    read with its files trusted (ReconstructionError when there is none, or of another format):
+    how a stage's ``load_*`` finds the record of a folder this run wrote or checked."""
+    if record is not None:
+        return record
+    return read_record(folder, record_name, fmt, what, "reconstruct again",
+                       error=ReconstructionError)
 
 
 def check_record(folder: Path, record_name: str, fmt: str, what: str, upstream: dict,
