@@ -1,20 +1,24 @@
 """Every step after matching: links, their dense points, the kinematic tree and the joints.
 
-:func:`articulate` is the one place these steps and their order live; the model stage
-(:mod:`artrecon.model_stage`) and the robustness harness (``sim.perturb.resegment``, which
-re-runs them on corrupted matches) both call it::
+This module is the one place these steps and their order live, in two halves: :func:`find_links`
+(the links stage, :mod:`artrecon.links_stage`) and :func:`find_joints` (the joints stage,
+:mod:`artrecon.joints_stage`); :func:`articulate` runs both in one call, for the robustness
+harness (``sim.perturb.resegment``, which re-runs them on corrupted matches)::
 
+    find_links:
     check_motion (nothing moved? one body? other object?)    artrecon.diagnosis
     -> segment_links -> merge_equivalent_links               artrecon.segment, .link_motions
     -> anchor_base -> add_guided_matches -> robust_refit     artrecon.link_motions
     -> dense points the table is seen through dropped        artrecon.freespace
     -> dense points assigned to links                        artrecon.assign
     -> links without dense surface dropped, links_from_labels
-    -> build_kinematic_tree (rerooted at the base)           artrecon.joints
+    find_joints:
+    build_kinematic_tree (rerooted at the base)              artrecon.joints
     -> estimate_joints -> assess_joints                      artrecon.joints, .confidence
 
 In: the 3D-3D matches of the object and of the background (A's and B's frames), each
-configuration's dense points and, optionally, its image cues. Out: an :class:`Articulation`.
+configuration's dense points and, optionally, its image cues. Out: :class:`Links`, then
+:class:`JointSet` (:class:`Articulation`: both).
 """
 
 from __future__ import annotations
@@ -137,8 +141,8 @@ def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndar
     base to the background, label the dense points with links, build the kinematic tree on the
     links' dense points, estimate each joint (step 3) and check its evidence.
 
-    The one place these steps and their order live: the pipeline and the robustness harness
-    (sim.perturb.resegment, which re-runs them on corrupted matches) both call it.
+    :func:`find_links` then :func:`find_joints`, the steps the pipeline's links and joints
+    stages run, in one call (sim.perturb.resegment re-runs them on corrupted matches).
 
     Parameters
     ----------

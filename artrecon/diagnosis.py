@@ -5,7 +5,7 @@ A run whose matches form fewer than two links fails either way; these checks cho
 explanation a user can act on. :func:`check_motion` runs before segmentation (whose own failure
 would name other causes); :func:`explain_segmentation_failure` turns a segmentation that left
 fewer than two links into the likelier cause. Both are called by
-:func:`artrecon.articulation.articulate`. :func:`blame_poses` names given camera poses that agree
+:func:`artrecon.articulation.find_links`. :func:`blame_poses` names given camera poses that agree
 poorly with the images as the likely cause of a failure of the links or the joints stage.
 """
 
