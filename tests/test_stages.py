@@ -34,10 +34,13 @@ def _assert_same_model(out, reference) -> None:
     assert sorted(got.files) == sorted(want.files)
     for key in want.files:
         np.testing.assert_array_equal(got[key], want[key], err_msg=key)
-    links = sorted(p.name for p in (reference / "links").iterdir())
-    assert sorted(p.name for p in (out / "links").iterdir()) == links
-    for name in links:
-        assert (out / "links" / name).read_bytes() == (reference / "links" / name).read_bytes()
+    # the links stage's files to the byte, but its record (links.json: timings)
+    names = sorted(p.name for p in (reference / "links").iterdir())
+    assert sorted(p.name for p in (out / "links").iterdir()) == names
+    for name in names:
+        if name != "links.json":
+            assert (out / "links" / name).read_bytes() == \
+                (reference / "links" / name).read_bytes(), name
 
 
 def test_the_stages_are_the_folders_contract(reconstruction_poses):
