@@ -1,20 +1,24 @@
 """Every step after matching: links, their dense points, the kinematic tree and the joints.
 
-:func:`articulate` is the one place these steps and their order live; the model stage
-(:mod:`artrecon.model_stage`) and the robustness harness (``sim.perturb.resegment``, which
-re-runs them on corrupted matches) both call it::
+This module is the one place these steps and their order live, in two halves: :func:`find_links`
+(the links stage, :mod:`artrecon.links_stage`) and :func:`find_joints` (the joints stage,
+:mod:`artrecon.joints_stage`); :func:`articulate` runs both in one call, for the robustness
+harness (``sim.perturb.resegment``, which re-runs them on corrupted matches)::
 
+    find_links:
     check_motion (nothing moved? one body? other object?)    artrecon.diagnosis
     -> segment_links -> merge_equivalent_links               artrecon.segment, .link_motions
     -> anchor_base -> add_guided_matches -> robust_refit     artrecon.link_motions
     -> dense points the table is seen through dropped        artrecon.freespace
     -> dense points assigned to links                        artrecon.assign
     -> links without dense surface dropped, links_from_labels
-    -> build_kinematic_tree (rerooted at the base)           artrecon.joints
+    find_joints:
+    build_kinematic_tree (rerooted at the base)              artrecon.joints
     -> estimate_joints -> assess_joints                      artrecon.joints, .confidence
 
 In: the 3D-3D matches of the object and of the background (A's and B's frames), each
-configuration's dense points and, optionally, its image cues. Out: an :class:`Articulation`.
+configuration's dense points and, optionally, its image cues. Out: :class:`Links`, then
+:class:`JointSet` (:class:`Articulation`: both).
 """
 
 from __future__ import annotations
@@ -50,6 +54,46 @@ log = logging.getLogger(__name__)
 
 
 @dataclass
+class Links:
+    """What :func:`find_links` finds in the matches: the links, their motions and dense points
+    (the links stage, :mod:`artrecon.links_stage`)."""
+
+    segmentation: Segmentation
+    """The matches' links, the base's motion anchored to the background."""
+    root: int | None
+    """The base (the link the background moves with), None when the background does not show it
+    (the tree's root is then the largest link)."""
+    anchors: dict | None
+    """``{root: (background_a, background_b, weights[, precisions])}``: the background matches
+    the base was fitted to, with their weights in the robust refit."""
+    labels_a: np.ndarray
+    """Link of each dense point of A (-1: none)."""
+    labels_b: np.ndarray
+    """Link of each dense point of B."""
+    links: list[Link]
+    points_a: np.ndarray
+    """The matches the links were fitted to (the guided ones appended), A's frame ..."""
+    points_b: np.ndarray
+    """... and B's; ``segmentation.labels`` labels them."""
+    guided_ids: np.ndarray
+    """(m, 2) SfM point ids (A, B) of the matches the guided matching appended."""
+    timings: dict[str, float]
+
+
+@dataclass
+class JointSet:
+    """What :func:`find_joints` finds for the links: the kinematic tree, the joints and their
+    evidence (the joints stage, :mod:`artrecon.joints_stage`)."""
+
+    tree: KinematicTree
+    joints: list
+    confidence: dict
+    """:func:`artrecon.confidence.assess_joints`' summary (each joint's record is also in
+    ``Joint.confidence``)."""
+    timings: dict[str, float]
+
+
+@dataclass
 class Articulation:
     """What :func:`articulate` finds in the matches: links, tree, joints and their evidence."""
 
@@ -59,7 +103,8 @@ class Articulation:
     """The base (the link the background moves with), None when the background does not show it
     (the tree's root is then the largest link)."""
     anchors: dict | None
-    """``{root: (background_a, background_b)}``: the background matches the base was fitted to."""
+    """``{root: (background_a, background_b, ...)}``: the background matches the base was
+    fitted to."""
     labels_a: np.ndarray
     """Link of each dense point of A (-1: none)."""
     labels_b: np.ndarray
@@ -78,6 +123,14 @@ class Articulation:
     guided_ids: np.ndarray | None = None
     """(m, 2) SfM point ids (A, B) of the matches the guided matching appended."""
 
+    @classmethod
+    def of(cls, links: Links, joints: JointSet) -> Articulation:
+        """The links and the joints found for them, as one."""
+        return cls(links.segmentation, links.root, links.anchors, links.labels_a,
+                   links.labels_b, links.links, joints.tree, joints.joints, joints.confidence,
+                   {**links.timings, **joints.timings}, links.points_a, links.points_b,
+                   links.guided_ids)
+
 
 def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndarray,
                background_b: np.ndarray, dense_a, dense_b, config: ReconstructConfig, seed: int,
@@ -88,8 +141,8 @@ def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndar
     base to the background, label the dense points with links, build the kinematic tree on the
     links' dense points, estimate each joint (step 3) and check its evidence.
 
-    The one place these steps and their order live: the pipeline and the robustness harness
-    (sim.perturb.resegment, which re-runs them on corrupted matches) both call it.
+    :func:`find_links` then :func:`find_joints`, the steps the pipeline's links and joints
+    stages run, in one call (sim.perturb.resegment re-runs them on corrupted matches).
 
     Parameters
     ----------
@@ -118,20 +171,67 @@ def articulate(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndar
     WeakEvidenceError
         A joint's evidence is too weak for its axis (artrecon.confidence).
     """
+    links = find_links(points_a, points_b, background_a, background_b, dense_a, dense_b,
+                       config, seed, views_a=views_a, views_b=views_b, occluders_a=occluders_a,
+                       occluders_b=occluders_b, candidates=candidates, covariances=covariances)
+    return Articulation.of(links, find_joints(links, config, seed))
+
+
+def find_links(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndarray,
+               background_b: np.ndarray, dense_a, dense_b, config: ReconstructConfig, seed: int,
+               *, views_a=None, views_b=None, occluders_a=None, occluders_b=None,
+               candidates: tuple[PointDescriptors, PointDescriptors] | None = None,
+               covariances: MatchCovariances | None = None) -> Links:
+    """The first steps of :func:`articulate` (its parameters): the links, the base anchored to
+    the background, the guided matches, the robust refit and the dense labels.
+
+    Raises
+    ------
+    DegenerateError
+        Fewer than two links (explained: no motion, one rigid body, chance pairings ...).
+    """
     # One BLAS thread: these steps multiply many small matrices ((n, 3) points by a rotation),
     # for which a second BLAS thread only adds its start-up and spinning (40 ms instead of 1 ms
     # of CPU per product of 150k points on this 2-core machine); the results are the same. The
     # two configurations' work runs side by side instead.
     with workers.single_threaded():
-        return _articulate(points_a, points_b, background_a, background_b, dense_a, dense_b,
+        return _find_links(points_a, points_b, background_a, background_b, dense_a, dense_b,
                            config, seed, views_a=views_a, views_b=views_b,
                            occluders_a=occluders_a, occluders_b=occluders_b,
                            candidates=candidates, covariances=covariances)
 
 
-def _articulate(points_a, points_b, background_a, background_b, dense_a, dense_b,
+def find_joints(links: Links, config: ReconstructConfig, seed: int) -> JointSet:
+    """The last steps of :func:`articulate`: the kinematic tree on the links' dense points
+    (rooted at the base), each joint, and its evidence.
+
+    Raises
+    ------
+    WeakEvidenceError
+        A joint's evidence is too weak for its axis (artrecon.confidence).
+    """
+    with workers.single_threaded():  # as find_links: many small products
+        t = time.perf_counter()
+        seg, root = links.segmentation, links.root
+        # Adjacency on the links' dense surfaces: the matches are sparse where links meet.
+        tree = build_kinematic_tree(links.points_a, seg, config.joints,
+                                    link_points=[lk.points for lk in links.links])
+        if root is None:
+            log.warning("the background does not show which link is the base; the largest "
+                        "link (%d) is taken as the root", tree.root)
+        elif root != tree.root:
+            tree = reroot(tree, root)
+        joints = estimate_joints(links.points_a, links.points_b, seg, config.joints, tree=tree)
+        # Evidence per joint (Joint.confidence); raises WeakEvidenceError rather than a wrong
+        # axis.
+        confidence = assess_joints(links.points_a, links.points_b, seg, joints, config.joints,
+                                   config.confidence, seed, links.anchors)
+        return JointSet(tree, joints, confidence, {"joints": time.perf_counter() - t})
+
+
+def _find_links(points_a, points_b, background_a, background_b, dense_a, dense_b,
                 config: ReconstructConfig, seed: int, *, views_a, views_b, occluders_a,
-                occluders_b, candidates, covariances=None) -> Articulation:
+                occluders_b, candidates, covariances=None) -> Links:
     timings: dict[str, float] = {}
     t = time.perf_counter()
     # nothing moved, or the whole object did: said first and plainly (NoMotionError, ...), unless
@@ -194,22 +294,7 @@ def _articulate(points_a, points_b, background_a, background_b, dense_a, dense_b
             "seen well enough; photograph it with more views or more texture")
     links = links_from_labels(dense_a, dense_b, lab_a, lab_b, seg.transforms)
     timings["assign"] = time.perf_counter() - t
-    t = time.perf_counter()
-    # Adjacency on the links' dense surfaces: the matches are sparse where links meet.
-    tree = build_kinematic_tree(points_a, seg, config.joints,
-                                link_points=[lk.points for lk in links])
-    if root is None:
-        log.warning("the background does not show which link is the base; the largest link "
-                    "(%d) is taken as the root", tree.root)
-    elif root != tree.root:
-        tree = reroot(tree, root)
-    joints = estimate_joints(points_a, points_b, seg, config.joints, tree=tree)
-    # Evidence per joint (Joint.confidence); raises WeakEvidenceError rather than a wrong axis.
-    confidence = assess_joints(points_a, points_b, seg, joints, config.joints, config.confidence,
-                               seed, anchors)
-    timings["joints"] = time.perf_counter() - t
-    return Articulation(seg, root, anchors, lab_a, lab_b, links, tree, joints, confidence,
-                        timings, points_a, points_b, guided)
+    return Links(seg, root, anchors, lab_a, lab_b, links, points_a, points_b, guided, timings)
 
 
 def drop_unsupported_links(seg: Segmentation, root: int | None, anchors: dict | None,

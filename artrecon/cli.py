@@ -7,11 +7,14 @@ artrecon.errors.NoMotionError), 1 when a stage fails (also when the evidence for
 is too weak: artrecon.errors.WeakEvidenceError), 130 when interrupted; the message says what to
 try, without a traceback.
 
-``reconstruct --to configurations`` stops after the per-configuration stage (``DIR/a``,
-``DIR/b``), ``--to matches`` after the matching (``DIR/matches/`` too); each prints the command
-that continues the run (``--from`` the next stage, the same inputs and options). ``--from
-model`` re-runs links and joints (with other segmentation, joint ... settings if wanted) on the
-matches of an earlier run; see artrecon.reconstruct.STAGES.
+``reconstruct --to STAGE`` stops after a stage (``--to configurations``: ``DIR/a``, ``DIR/b``;
+``--to matches``: ``DIR/matches/`` too; then ``links``, ``joints``, ``refine``, each its folder
+``DIR/<stage>/``) and prints the command that continues the run (``--from`` the next stage, the
+same inputs and options). ``--from STAGE`` starts from the folders of an earlier run, checked,
+and runs that stage and the later ones, with other settings of those stages if wanted (``--from
+links``: the links and joints again with other segmentation, joint ... settings, on the same
+matches; ``--from joints``: the joints on the same links; ``--from model``: only the model
+assembled again); see artrecon.reconstruct.STAGES.
 """
 
 from __future__ import annotations
@@ -37,8 +40,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("dir_a", help="images of configuration A (a folder of photos, or a capture "
                    "folder with images/ and cameras.json)")
     r.add_argument("dir_b", help="images of configuration B")
-    r.add_argument("--out", required=True, help="output folder (model.json, links/*.ply, "
-                   "matches.npz, matches/, a/sparse/0, b/sparse/0 ...)")
+    r.add_argument("--out", required=True, help="output folder (model.json, matches.npz, "
+                   "a/sparse/0, b/sparse/0, matches/, links/ (link_k.ply ...), joints/, "
+                   "refine/ ...)")
     r.add_argument("--intrinsics", default=None, help="known pinhole intrinsics 'fx,fy,cx,cy' "
                    "(pixels) or a JSON file with 'K'; default: a folder's cameras.json, else "
                    "estimated by SfM")
@@ -54,23 +58,27 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     r.add_argument("--overwrite", action="store_true", help="replace an existing output folder "
                    "(only a previous result: a folder holding model.json or the configurations "
-                   "of --to configurations or --to matches); with --from: replace what the "
-                   "run writes (--from matches: the matches and model; --from model: the "
-                   "model), keep the stages before it")
+                   "of a run stopped with --to); with --from: replace what the run writes (the "
+                   "stage --from names, the later ones and the model), keep the stages before "
+                   "it")
     stages = "{" + ",".join(STAGES) + "}"
     r.add_argument("--from", dest="from_stage", default="configurations", metavar=stages,
-                   help="first stage to run: 'configurations' (default: from the images), "
-                   "'matches' (start from OUT/a and OUT/b of an earlier run of the same images, "
-                   "options and seed, e.g. one stopped with --to configurations) or 'model' "
-                   "(start from OUT/a, OUT/b and OUT/matches/ of an earlier run of the same "
-                   "images and seed, the same sfm.*, dense.*, region.*, match.* settings and "
-                   "segmentation.covariances; the other settings (segmentation.*, joints.* "
-                   "...) may differ). What a run starts from is "
-                   "checked, never recomputed")
+                   help="first stage to run: 'configurations' (default: from the images), or a "
+                   "later one, starting from the folders an earlier run of the same images, "
+                   "options and seed left for the stages before it (e.g. one stopped with --to "
+                   "the stage before): 'matches' (OUT/a and OUT/b), 'links' (and "
+                   "OUT/matches/), 'joints' (and OUT/links/), 'refine' (and OUT/joints/), "
+                   "'model' (and OUT/refine/). The settings of the stages before it must be "
+                   "those they were made with (sfm.*, dense.*, region.*; match.* and "
+                   "segmentation.covariances; the links' segmentation.*, guided.*, assign.*, "
+                   "freespace.*; the joints' joints.*, confidence.*; refine.*); those of the "
+                   "stages it runs may differ. What a run starts from is checked, never "
+                   "recomputed")
     r.add_argument("--to", dest="to_stage", default="model", metavar=stages,
-                   help="last stage to run: 'model' (default), 'matches' (stop after matching "
-                   "A x B: OUT/a, OUT/b, OUT/matches/) or 'configurations' (stop after each "
-                   "configuration's SfM, dense points and object region: OUT/a, OUT/b)")
+                   help="last stage to run: 'model' (default), or stop after 'configurations' "
+                   "(each configuration's SfM, dense points and object region: OUT/a, OUT/b), "
+                   "'matches' (A x B: OUT/matches/), 'links' (OUT/links/), 'joints' "
+                   "(OUT/joints/) or 'refine' (OUT/refine/)")
     r.add_argument("--quiet", action="store_true", help="no progress bars, warnings only")
     r.set_defaults(handler=_run_reconstruct)
     add_export_parser(sub)
@@ -107,13 +115,9 @@ def _run_reconstruct(args: argparse.Namespace) -> int:
         print(f"artrecon: interrupted; {args.out} is as it was (run again to start over)",
               file=sys.stderr)
         return 130
-    if model is None:  # stopped after the configurations or the matches
-        wrote = {"configurations": f"wrote {args.out}/a and {args.out}/b: the cameras, dense "
-                 "points and object region of each configuration",
-                 "matches": f"wrote {args.out}/a, {args.out}/b and {args.out}/matches: the "
-                 "configurations and the matches across them"}[args.to_stage]
-        print(f"{wrote} (stage {args.to_stage!r}); continue with:\n  "
-              + _continue_command(args))
+    if model is None:  # stopped after an earlier stage
+        print(f"wrote {args.out} up to stage {args.to_stage!r} ("
+              f"{STAGES[args.to_stage]}); continue with:\n  " + _continue_command(args))
         return 0
     print(f"wrote {args.out}: {len(model.links)} links, {len(model.joints)} joints")
     cams = model.metadata.get("intrinsics") or {}

@@ -112,7 +112,8 @@ def check_reusable(folder: str | Path, image_set: ImageSet, intrinsics: Intrinsi
     """Refuse a folder that is not a finished stage of exactly these inputs and settings.
 
     :func:`reconstruct_configuration` quietly recomputes such a folder; a run told to start
-    after this stage (``artrecon reconstruct --from model``) must not, so it asks here first.
+    after this stage (``artrecon reconstruct --from matches`` or any later stage) must not, so
+    it asks here first.
 
     Parameters
     ----------

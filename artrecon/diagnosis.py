@@ -5,7 +5,8 @@ A run whose matches form fewer than two links fails either way; these checks cho
 explanation a user can act on. :func:`check_motion` runs before segmentation (whose own failure
 would name other causes); :func:`explain_segmentation_failure` turns a segmentation that left
 fewer than two links into the likelier cause. Both are called by
-:func:`artrecon.articulation.articulate`.
+:func:`artrecon.articulation.find_links`. :func:`blame_poses` names given camera poses that agree
+poorly with the images as the likely cause of a failure of the links or the joints stage.
 """
 
 from __future__ import annotations
@@ -15,7 +16,13 @@ from dataclasses import replace
 import numpy as np
 
 from artrecon import tolerances as tol
-from artrecon.errors import DegenerateError, NoMotionError, ReconstructionError, SingleBodyError
+from artrecon.errors import (
+    DegenerateError,
+    NoMotionError,
+    ReconstructionError,
+    SingleBodyError,
+    WeakEvidenceError,
+)
 from artrecon.geometry import rotation_angle
 from artrecon.segment import min_link_size, segment_links
 
@@ -209,3 +216,33 @@ def check_motion(points_a, points_b, background_a, background_b, seg_config,
         f"{100 * gap / obj.scene_size_b:.1f}% of the object's size. Move a joint of the object "
         "(not the whole object) between the two image sets; if a part did move, photograph it "
         "from more views so that it gets matches of its own")
+
+
+def blame_poses(err: Exception, sfms: dict, config) -> Exception:
+    """``err`` (a segmentation or joint-evidence failure) with the given camera poses named as its
+    likely cause, when they were given and agree with the images worse than
+    ``config.suspect_pose_epipolar_px`` (``config``: the run's artrecon.sfm.SfMConfig; though well
+    enough to pass the pose check); else ``err``.
+
+    Slightly wrong poses (encoder noise, a camera mount error) put each configuration's points
+    in slightly different wrong places, so the matches across configurations stop moving
+    together, and segmentation blames the matches ("chance pairings", "too few inliers").
+    """
+    figures = {k: s.pose_agreement["epipolar_median_px"] for k, s in sfms.items()
+               if s.pose_agreement and s.pose_agreement.get("epipolar_median_px") is not None}
+    if not any(v > config.suspect_pose_epipolar_px for v in figures.values()):
+        return err
+    note = (" Likely cause: the given camera poses. They passed the pose check but agree with the "
+            "images only to a median " + ", ".join(f"{v:.2f} px ({k.upper()})"
+                                                   for k, v in sorted(figures.items()))
+            + " from the epipolar lines they predict (exact poses: ~0.1 px); such poses "
+            "(a hand-eye / camera mount calibration error, arm encoder errors) put the points of "
+            "the two configurations in differently wrong places, so their matches no longer move "
+            "together. Run without the poses (without --use-poses) so SfM recovers the cameras "
+            "from the images, or recalibrate the camera mount and the arm.")
+    if isinstance(err, WeakEvidenceError):
+        return WeakEvidenceError(str(err) + note, err.records)
+    try:
+        return type(err)(str(err) + note)
+    except TypeError:  # an error class with another constructor
+        return ReconstructionError(str(err) + note)

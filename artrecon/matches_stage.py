@@ -19,28 +19,28 @@ COLMAP database's descriptors, the object region and the background sample). Out
 
 :func:`match_stage` writes it, :func:`check_matches` refuses one that is not this run's (the
 record names other configurations, settings, seed or version; a file is missing or not the one
-the record names), :func:`load_matches` reads it back. The model stage
-(:mod:`artrecon.model_stage`) always starts from the folder, in a whole run too, so a run
-continued from it (``--from model``) gives the whole run's model bit for bit.
+the record names), :func:`load_matches` reads it back. The links stage
+(:mod:`artrecon.links_stage`) and the refinement always start from the folder, in a whole run
+too, so a run continued from it (``--from links``) gives the whole run's model bit for bit. The
+files are hashed once per run: as they are written, or, in a folder of an earlier run, when
+:func:`check_matches` checks them.
 
-Not to be confused with ``OUT/matches.npz``, which the model stage writes: the matches the links
-were fitted to (the guided ones appended) with their link labels.
+Not to be confused with ``OUT/matches.npz`` (and ``OUT/links/matches.npz``, which it copies),
+which the links stage writes: the matches the links were fitted to (the guided ones appended)
+with their link labels.
 """
 
 from __future__ import annotations
 
-import hashlib
-import io
-import json
 import logging
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from artrecon._version import __version__
-from artrecon.errors import InputError, ReconstructionError
+from artrecon.errors import ReconstructionError
 from artrecon.features import (
     CrossMatches,
     PointDescriptors,
@@ -48,7 +48,15 @@ from artrecon.features import (
     point_descriptors,
     tracked_features,
 )
-from artrecon.files import read_json, write_bytes_atomic, write_json_atomic
+from artrecon.stage_record import (
+    check_record,
+    file_problems,
+    inputs_digest,
+    npz_bytes,
+    read_record,
+    stage_settings,
+    write_stage,
+)
 from artrecon.uncertainty import MatchCovariances, point_covariances
 
 log = logging.getLogger(__name__)
@@ -92,25 +100,21 @@ def match_settings(config) -> dict:
     lists): all of ``config.match``, and ``segmentation.covariances`` (whether the covariances
     are computed). The other settings of the later stages (segmentation, guided matching,
     joints ...) do not change the folder."""
-    return json.loads(json.dumps({"match": asdict(config.match),
-                                  "segmentation": {"covariances":
-                                                   bool(config.segmentation.covariances)}},
-                                 default=str))
+    return {**stage_settings(config, ("match",)),
+            "segmentation": {"covariances": bool(config.segmentation.covariances)}}
 
 
 def matches_digest(configurations: dict, settings: dict, seed: int) -> str:
     """SHA-256 of everything the stage's result depends on: the configurations (their records'
     ``inputs_digest``, ``{"a": ..., "b": ...}``), the settings (:func:`match_settings`), the
     seed and artrecon's version."""
-    return hashlib.sha256(json.dumps({"configurations": configurations, "settings": settings,
-                                      "seed": seed, "version": __version__},
-                                     sort_keys=True).encode()).hexdigest()
+    return inputs_digest({"configurations": configurations}, settings, seed)
 
 
-def _npz_bytes(arrays: dict) -> bytes:
-    buffer = io.BytesIO()
-    np.savez(buffer, **arrays)
-    return buffer.getvalue()
+def _required(covariances: bool) -> set[str]:
+    """The files a record must name."""
+    return {"object.npz", "background.npz", "candidates.npz"} | (
+        {"covariances.npz"} if covariances else set())
 
 
 def match_stage(confs: dict, folder: str | Path, config, seed: int) -> Matching:
@@ -164,49 +168,26 @@ def match_stage(confs: dict, folder: str | Path, config, seed: int) -> Matching:
     }
     if covariances is not None:
         files["covariances.npz"] = {k: getattr(covariances, k) for k in _COVARIANCE_FIELDS}
-    digests = {}
-    for name, arrays in files.items():
-        data = _npz_bytes(arrays)
-        write_bytes_atomic(folder / name, data)
-        digests[name] = hashlib.sha256(data).hexdigest()
     settings = match_settings(config)
     configurations = {k: confs[k].record["inputs_digest"] for k in ("a", "b")}
-    record = {
+    record = write_stage(folder, {name: npz_bytes(arrays) for name, arrays in files.items()}, {
         "format": FORMAT, "inputs_digest": matches_digest(configurations, settings, seed),
         "configurations": configurations, "settings": settings, "seed": seed,
-        "artrecon_version": __version__, "files": digests,
+        "artrecon_version": __version__,
         "matches": len(matches), "background_matches": len(background),
         "candidates": {"a": len(candidates[0]), "b": len(candidates[1])},
         "covariances": covariances is not None, "timings": {"match": seconds},
-    }
-    write_json_atomic(folder / RECORD, record)  # last: a folder without it is incomplete
+    }, RECORD)
     log.info("matches: %d on the object, %d on the background, %d + %d candidates (%.1f s)",
              len(matches), len(background), len(candidates[0]), len(candidates[1]), seconds)
-    return load_matches(folder)
-
-
-def _file_problems(folder: Path, record: dict) -> list[str]:
-    """The files the record names that are missing or hold other bytes than it names."""
-    files = record.get("files")
-    if not isinstance(files, dict) or not {"object.npz", "background.npz",
-                                           "candidates.npz"} <= set(files):
-        return ["the record does not name the stage's files"]
-    if record.get("covariances") and "covariances.npz" not in files:
-        return ["the record names covariances but no covariances.npz"]
-    out = []
-    for name, digest in sorted(files.items()):
-        path = folder / name
-        if not path.is_file():
-            out.append(f"{name} is missing")
-        elif hashlib.sha256(path.read_bytes()).hexdigest() != digest:
-            out.append(f"{name} is not the file the record names (changed or half-written)")
-    return out
+    # read back as a later run reads it (the files just hashed as they were written)
+    return _read_matches(folder, record)
 
 
 def check_matches(folder: str | Path, configurations: dict, config, seed: int, *,
                   restart: str = "run from the start") -> dict:
     """Refuse a folder that is not a finished matches stage of exactly these configurations,
-    settings and seed (a run told to start after the stage, ``--from model``, asks here first;
+    settings and seed (a run told to start after the stage, ``--from links``, asks here first;
     nothing is ever recomputed quietly).
 
     Parameters
@@ -233,51 +214,22 @@ def check_matches(folder: str | Path, configurations: dict, config, seed: int, *
         made from other configurations, settings, seed or version (the message names what
         differs), or files missing or changed.
     """
-    folder = Path(folder)
-    record_path = folder / RECORD
-    if not record_path.is_file():
-        raise InputError(f"{folder} holds no finished matches stage (no {RECORD}; a run "
-                         f"stopped with --to configurations, or interrupted); {restart}")
-    record = read_json(record_path)
-    if not isinstance(record, dict) or record.get("format") != FORMAT:
-        got = record.get("format") if isinstance(record, dict) else None
-        raise InputError(f"{record_path}: format {got!r}, this artrecon reads {FORMAT!r}; "
-                         f"{restart}")
-    settings = match_settings(config)
-    if record.get("inputs_digest") != matches_digest(configurations, settings, seed):
-        differs = "; ".join(_differences(record, configurations, settings, seed))
-        raise InputError(f"the matches in {folder} were made from other configurations or "
-                         f"settings than this run's ({differs}), so they are not reused; "
-                         f"{restart}, or give the settings they were made with")
-    problems = _file_problems(folder, record)
-    if problems:
-        raise InputError(f"the matches in {folder} are incomplete: {'; '.join(problems)}; "
-                         f"{restart}")
-    return record
+    def upstream_differences(record: dict) -> list[str]:
+        there = record.get("configurations") or {}
+        return [f"configuration {k.upper()} is not the one they were matched in (its "
+                "configuration.json was written since)"
+                for k in sorted(configurations) if there.get(k) != configurations[k]]
+
+    return check_record(Path(folder), RECORD, FORMAT, "matches",
+                        {"configurations": configurations}, match_settings(config), seed,
+                        required=_required(bool(config.segmentation.covariances)),
+                        restart=restart, made_from="configurations",
+                        upstream_differences=upstream_differences)
 
 
-def _differences(record: dict, configurations: dict, settings: dict, seed: int) -> list[str]:
-    """What a record names otherwise than this run (for :func:`check_matches`'s message)."""
-    out = []
-    if record.get("artrecon_version") != __version__:
-        out.append(f"artrecon {record.get('artrecon_version')} made them, this is "
-                   f"{__version__}")
-    if record.get("seed") != seed:
-        out.append(f"seed {record.get('seed')} there, {seed} now")
-    there = record.get("configurations") or {}
-    out += [f"configuration {k.upper()} is not the one they were matched in (its "
-            "configuration.json was written since)"
-            for k in sorted(configurations) if there.get(k) != configurations[k]]
-    recorded = record.get("settings") or {}
-    for stage in sorted(set(settings) | set(recorded)):
-        a, b = recorded.get(stage) or {}, settings.get(stage) or {}
-        out += [f"{stage}.{k}: {a.get(k)!r} there, {b.get(k)!r} now"
-                for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
-    return out or ["the record's digest"]
-
-
-def load_matches(folder: str | Path) -> Matching:
-    """Read a folder written by :func:`match_stage` (its files checked against the record).
+def load_matches(folder: str | Path, record: dict | None = None) -> Matching:
+    """Read a folder written by :func:`match_stage` (its files checked against the record,
+    unless ``record`` is given: the folder's record, already checked by :func:`check_matches`).
 
     Raises
     ------
@@ -285,18 +237,19 @@ def load_matches(folder: str | Path) -> Matching:
         The folder is incomplete (no record, a file missing or changed) or of another format.
     """
     folder = Path(folder)
-    record_path = folder / RECORD
-    if not record_path.is_file():
-        raise ReconstructionError(f"{folder} holds no finished matches stage (no {RECORD}); "
-                                  "run the reconstruction again")
-    record = read_json(record_path)
-    if record.get("format") != FORMAT:
-        raise ReconstructionError(f"{record_path}: format {record.get('format')!r}, this "
-                                  f"artrecon reads {FORMAT!r}; reconstruct again")
-    problems = _file_problems(folder, record)
+    if record is not None:
+        return _read_matches(folder, record)
+    record = read_record(folder, RECORD, FORMAT, "matches", "reconstruct again",
+                         error=ReconstructionError)
+    problems = file_problems(folder, record, _required(bool(record.get("covariances"))))
     if problems:
         raise ReconstructionError(f"the matches in {folder} are incomplete: "
                                   f"{'; '.join(problems)}; reconstruct again")
+    return _read_matches(folder, record)
+
+
+def _read_matches(folder: Path, record: dict) -> Matching:
+    """The folder's arrays, its record ``record`` (checked, or just written)."""
 
     def arrays(name: str) -> dict:
         with np.load(folder / name) as npz:

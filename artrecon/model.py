@@ -305,22 +305,7 @@ class ArticulatedModel:
                 }
                 for lk in self.links
             ],
-            "joints": [
-                {
-                    "name": j.name,
-                    "type": j.type,
-                    "axis_direction": j.axis_direction.tolist(),
-                    "axis_point": j.axis_point.tolist(),
-                    "parent": j.parent,
-                    "child": j.child,
-                    "state_a": j.state_a,
-                    "state_b": j.state_b,
-                    "relative_transform": j.relative_transform.to_dict(),
-                    "residual": j.residual,
-                    "confidence": j.confidence,
-                }
-                for j in self.joints
-            ],
+            "joints": [joint_to_dict(j) for j in self.joints],
             "metadata": self.metadata,
         }
 
@@ -375,19 +360,7 @@ class ArticulatedModel:
             joints = []
             for i, j in enumerate(_items(d, "joints")):
                 where = f"joints[{i}]"
-                joints.append(Joint(
-                    type=j["type"],
-                    axis_direction=np.array(j["axis_direction"], dtype=float),
-                    axis_point=np.array(j["axis_point"], dtype=float),
-                    parent=j["parent"],
-                    child=j["child"],
-                    state_a=j["state_a"],
-                    state_b=j["state_b"],
-                    name=j["name"],
-                    relative_transform=Similarity.from_dict(j["relative_transform"]),
-                    residual=j["residual"],
-                    confidence=j.get("confidence") or {},  # absent in files before confidence
-                ))
+                joints.append(joint_from_dict(j))
             where = "the model's scale, frames or root"
             return cls(
                 links=links,
@@ -437,6 +410,41 @@ class ArticulatedModel:
             return cls.from_dict(d)
         except InputError as exc:
             raise InputError(f"{path}: {exc}") from exc
+
+
+def joint_to_dict(j: Joint) -> dict:
+    """A joint as model.json holds it (lossless: JSON floats read back exactly)."""
+    return {
+        "name": j.name,
+        "type": j.type,
+        "axis_direction": j.axis_direction.tolist(),
+        "axis_point": j.axis_point.tolist(),
+        "parent": j.parent,
+        "child": j.child,
+        "state_a": j.state_a,
+        "state_b": j.state_b,
+        "relative_transform": j.relative_transform.to_dict(),
+        "residual": j.residual,
+        "confidence": j.confidence,
+    }
+
+
+def joint_from_dict(j: dict) -> Joint:
+    """The joint of a dict written by :func:`joint_to_dict` (KeyError, TypeError, ValueError
+    when malformed)."""
+    return Joint(
+        type=j["type"],
+        axis_direction=np.array(j["axis_direction"], dtype=float),
+        axis_point=np.array(j["axis_point"], dtype=float),
+        parent=j["parent"],
+        child=j["child"],
+        state_a=j["state_a"],
+        state_b=j["state_b"],
+        name=j["name"],
+        relative_transform=Similarity.from_dict(j["relative_transform"]),
+        residual=j["residual"],
+        confidence=j.get("confidence") or {},  # absent in files before confidence
+    )
 
 
 def _encode(a: np.ndarray | None):

@@ -4,16 +4,19 @@ Stages (each its own module, plain data between them)::
 
     sfm (per configuration) -> dense (per configuration) -> object region -> features (A x B)
         -> segment_links -> dense points the table is seen through dropped (artrecon.freespace)
-        -> dense points assigned to links -> estimate_joints -> ArticulatedModel
+        -> dense points assigned to links -> estimate_joints -> refine_joints
+        -> ArticulatedModel
 
 Where they live: this module is the entry (:func:`reconstruct`: the inputs checked, the output
 folder, which stages run); :mod:`artrecon.configuration` is the per-configuration stage (SfM,
 dense points, object region); :mod:`artrecon.matches_stage` the matches stage (matching A x B
 lifted to 3D-3D pairs, the background's, the guided matching's candidates, the covariances);
-:mod:`artrecon.model_stage` the model stage (the model and its files), which calls
-:func:`artrecon.articulation.articulate` for every step after matching (the links' motions:
-:mod:`artrecon.link_motions`). The settings of every stage are one
-:class:`artrecon.settings.ReconstructConfig`.
+:mod:`artrecon.links_stage` the links (:func:`artrecon.articulation.find_links`: segmentation,
+the base, guided matches, robust refit, dense labels; the links' motions:
+:mod:`artrecon.link_motions`); :mod:`artrecon.joints_stage` the kinematic tree and the joints
+(:func:`artrecon.articulation.find_joints`); :mod:`artrecon.refine_stage` the joints'
+articulated bundle adjustment; :mod:`artrecon.model_stage` the model and its files. The
+settings of every stage are one :class:`artrecon.settings.ReconstructConfig`.
 
 The model frame is configuration A's SfM frame: arbitrary scale and placement when the
 cameras were found from the images alone (``model.scale_known`` is False), the frame of the given
@@ -32,48 +35,52 @@ matches, the largest link is the root).
 Output folder (written whole or not at all: built in a temporary sibling folder, then renamed)::
 
     OUT/model.json                    the ArticulatedModel (ArticulatedModel.load reads it)
-    OUT/links/link_<k>.ply            dense oriented points of each link (model frame)
+    OUT/matches.npz                   the 3D-3D matches the links were fitted to (points_a,
+                                      points_b, ids, votes, labels; the guided ones appended),
+                                      background_a, background_b (a copy of
+                                      OUT/links/matches.npz)
     OUT/a/sparse/0, OUT/b/sparse/0    the SfM models in COLMAP's layout (+ database.db, colmap.log)
     OUT/a/dense.ply, OUT/b/dense.ply  the object's dense points of each configuration (own frame)
     OUT/a/configuration.json, ...     the per-configuration stage's record and its other files
                                       (the folder contract of artrecon.configuration)
-    OUT/matches/                      the matches stage's folder: the matches as matched, the
-                                      background's, the guided matching's candidates, the
-                                      covariances, the record matches.json (the folder
-                                      contract of artrecon.matches_stage)
-    OUT/matches.npz                   the 3D-3D matches the links were fitted to (points_a,
-                                      points_b, ids, votes, labels; the guided ones appended),
-                                      background_a, background_b
+    OUT/matches/                      the matches stage's folder (artrecon.matches_stage)
+    OUT/links/                        the links stage's (artrecon.links_stage), with
+                                      link_<k>.ply: each link's dense oriented points (model
+                                      frame)
+    OUT/joints/                       the joints stage's (artrecon.joints_stage)
+    OUT/refine/                       the refinement stage's (artrecon.refine_stage)
 
 Running part of it (:data:`STAGES`; ``from_stage``/``to_stage``, the command's ``--from`` and
-``--to``). The folder holds the result of three stages; a run may stop after any of them and
-start at any of them::
+``--to``). A run may stop after any stage and start at any stage::
 
     configurations   images -> OUT/a, OUT/b (each: SfM, dense points, object region; written
                      side by side, the record configuration.json last)
     matches          OUT/a, OUT/b -> OUT/matches/ (the record matches.json last)
-    model            OUT/a, OUT/b, OUT/matches/ -> OUT/matches.npz, OUT/links/, OUT/model.json
+    links            OUT/matches/, OUT/a, OUT/b -> OUT/links/ (links.json last)
+    joints           OUT/links/ -> OUT/joints/ (joints.json last)
+    refine           OUT/links/, OUT/joints/, the SfM of OUT/a, OUT/b -> OUT/refine/
+                     (refine.json last)
+    model            all of them -> OUT/model.json, OUT/matches.npz
 
-``to_stage="configurations"`` publishes a folder holding OUT/a and OUT/b only,
-``to_stage="matches"`` one holding OUT/matches/ too. A later start takes such a folder (or a
-whole result, with ``overwrite``) and checks what it starts from against this run, never
+``to_stage`` publishes a folder holding the stages up to it. A later start takes such a folder
+(or a whole result, with ``overwrite``) and checks what it starts from against this run, never
 recomputing it quietly (InputError naming what differs and which stage to start from instead):
 each configuration's record must name the same images, intrinsics, poses, settings (sfm, dense,
-region), seed and artrecon version as this run (``from_stage="matches"`` or ``"model"``), and
-the matches' record (``from_stage="model"``) the same configurations (their records' digests),
-match settings (:func:`artrecon.matches_stage.match_settings`: ``match.*`` and
-``segmentation.covariances``), seed and version, with its files whole. The settings of the
-model stage (segmentation, guided matching, joints, assignment ...) may differ: re-running the
-links and joints with other settings does not match again. The folder is published again
-whole, the stages before ``from_stage`` copied and the later ones added.
+region), seed and artrecon version as this run, and the record of each later stage before
+``from_stage`` the record of the stage before it (its digest), the settings it reads (the
+matches: ``match.*`` and ``segmentation.covariances``; the links: ``segmentation.*``,
+``guided.*``, ``assign.*``, ``freespace.*``, ``region.*``; the joints: ``joints.*``,
+``confidence.*``; the refinement: ``refine.*``), seed and version, with its files whole. The
+settings of the stages it runs may differ: ``from_stage="joints"`` with other joint settings
+estimates the joints again on the same links. The folder is published again whole, the stages
+before ``from_stage`` copied and the later ones added.
 
 The continued run's model is the one the whole run gives, bit for bit (tests/test_stages.py):
 the whole run reads configuration B back from its folder too (A's folder holds what A's stage
-returned, artrecon.configuration), and its model stage reads the matches back from OUT/matches/
-as a run ``from_stage="model"`` does. Nothing finer is a stage: a configuration's SfM and dense
-points share one record, so a folder whose dense stage failed holds no result a later run could
-check; the links, joints and dense labels are one stage (:func:`artrecon.articulation.articulate`
-runs them in order).
+returned, artrecon.configuration), and each later stage reads the ones before it back from
+their folders as a continued run does. Nothing finer is a stage: a configuration's SfM and
+dense points share one record, so a folder whose dense stage failed holds no result a later run
+could check.
 """
 
 from __future__ import annotations
@@ -100,6 +107,7 @@ from artrecon.files import (
     check_output_dir,
     check_output_path,
     publish_dir,
+    read_json,
     work_dir,
 )
 from artrecon.io import (
@@ -109,9 +117,12 @@ from artrecon.io import (
     load_image_folder,
     parse_intrinsics,
 )
+from artrecon.joints_stage import check_joints, load_joints, run_joints
+from artrecon.links_stage import check_links, load_links, run_links
 from artrecon.matches_stage import check_matches, load_matches, match_stage
 from artrecon.model import ArticulatedModel
 from artrecon.model_stage import build_model
+from artrecon.refine_stage import check_refine, load_refine, run_refine
 from artrecon.settings import ReconstructConfig, with_settings
 
 log = logging.getLogger(__name__)
@@ -123,22 +134,33 @@ __all__ = ["STAGES", "ReconstructConfig", "prepare_configuration", "reconstruct"
 
 #: The stages a run can start at or stop after (:func:`reconstruct`'s ``from_stage`` and
 #: ``to_stage``, the command's ``--from`` and ``--to``), in order, with what each leaves in the
-#: output folder for the next. Only these three: the output folder keeps nothing finer that a
-#: later run could check and start from (a configuration's SfM and dense points are one record,
-#: :mod:`artrecon.configuration`; links, joints and dense labels are saved together).
+#: output folder for the next. Nothing finer: a configuration's SfM and dense points are one
+#: record (:mod:`artrecon.configuration`).
 STAGES = {
     "configurations": "OUT/a and OUT/b: each configuration's cameras (SfM), dense points and "
                       "object region",
     "matches": "OUT/matches/: the 3D-3D matches across A and B, the background matches, the "
                "guided matching's candidates and the covariances",
-    "model": "OUT/matches.npz, OUT/links/, OUT/model.json: links, joints",
+    "links": "OUT/links/: the links of the matches (RANSAC, the base, guided matches, robust "
+             "refit) and every dense point's link",
+    "joints": "OUT/joints/: the kinematic tree, the joints and their evidence",
+    "refine": "OUT/refine/: the joints' articulated bundle adjustment (uncertainty, refined "
+              "figures)",
+    "model": "OUT/model.json, OUT/matches.npz: the articulated model",
 }
-#: Files that tell a folder written by :func:`reconstruct` (whole, or stopped after the
-#: configurations or the matches) from any other folder.
+#: Files that tell a folder written by :func:`reconstruct` (whole, or stopped after a stage)
+#: from any other folder.
 OUTPUT_MARKERS = ("model.json", "a/configuration.json", "b/configuration.json")
-#: The matches stage's record in the output folder (:mod:`artrecon.matches_stage`).
-MATCHES_RECORD = "matches/matches.json"
-
+#: The record of each stage between the configurations and the model (its folder is
+#: ``OUT/<stage>``): written last, so a folder holding it holds the finished stage.
+STAGE_RECORDS = {"matches": "matches/matches.json", "links": "links/links.json",
+                 "joints": "joints/joints.json", "refine": "refine/refine.json"}
+#: How each of those stages checks a folder of an earlier run against this one (its record's
+#: upstream digest, the settings it reads, seed, version, its files).
+_CHECKS = {"matches": check_matches, "links": check_links, "joints": check_joints,
+           "refine": check_refine}
+#: What a folder holding a stage's record holds, for messages.
+_HOLDS = {"matches": "matches", "links": "links", "joints": "joints", "refine": "a refinement"}
 
 
 def _resolve_inputs(images, intrinsics, poses_arg, which: str):
@@ -175,11 +197,12 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
 
     The whole run by default; ``from_stage`` and ``to_stage`` run part of it (:data:`STAGES`):
     ``to_stage="configurations"`` writes ``out_dir/a`` and ``out_dir/b`` and stops,
-    ``to_stage="matches"`` adds ``out_dir/matches`` and stops; ``from_stage="matches"`` starts
-    from the configurations of an existing ``out_dir``, ``from_stage="model"`` from its
-    configurations and matches (with, if wanted, other settings of the model stage:
-    segmentation, joints ...). The parts give the model the whole run gives (same inputs,
-    settings and seed).
+    ``to_stage="matches"`` adds ``out_dir/matches`` and stops, and so on for ``"links"``,
+    ``"joints"``, ``"refine"``; a later ``from_stage`` starts from the folders an earlier run
+    left in ``out_dir`` for the stages before it (with, if wanted, other settings of the stages
+    it runs: ``"links"`` other segmentation or joint settings, ``"joints"`` other joint
+    settings ...). The parts give the model the whole run gives (same inputs, settings and
+    seed).
 
     Parameters
     ----------
@@ -199,8 +222,8 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
     overwrite : bool
         Replace an existing ``out_dir`` (only a folder this function wrote: one holding
         ``model.json`` or the configurations' records). With a later ``from_stage``: replace
-        what the run writes in an ``out_dir`` that holds it already (``"matches"``: its matches
-        and model; ``"model"``: its model); the stages before ``from_stage`` are kept.
+        what the run writes in an ``out_dir`` that holds it already (the stage ``from_stage``,
+        the later ones, the model); the stages before ``from_stage`` are kept.
     progress : bool
         tqdm bars on stderr.
     jobs : int
@@ -210,26 +233,26 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
         Folders of finished per-configuration stages of these image sets (e.g. written by the
         harness while it captured): reused when their records name the same inputs and
         settings, recomputed otherwise. Only with ``from_stage="configurations"``.
-    from_stage, to_stage : {"configurations", "matches", "model"}
+    from_stage, to_stage : {"configurations", "matches", "links", "joints", "refine", "model"}
         The first and the last stage to run (:data:`STAGES`). A later ``from_stage`` needs the
         ``out_dir`` of an earlier run of these inputs and seed (stopped after the stage before
-        it, or later, or whole): ``"matches"`` its configurations (of these settings),
-        ``"model"`` its configurations and matches (of these configuration and match settings;
-        the model stage's may differ); their records are checked, never recomputed.
+        it, or later, or whole): the folders of the stages before it, made with this run's
+        settings of those stages (the later stages' may differ); their records are checked,
+        never recomputed.
 
     Returns
     -------
     ArticulatedModel or None
         Links with dense oriented points (model frame = configuration A's SfM frame), joints;
-        None when the run stops after the configurations or the matches.
+        None when the run stops before the model.
 
     Raises
     ------
     InputError
         Bad folders, images or camera files; an unknown stage, ``from_stage`` after
-        ``to_stage``, or (a later ``from_stage``) an ``out_dir`` without finished
-        configurations (or, ``"model"``, matches) of these inputs and settings (the message
-        says what differs).
+        ``to_stage``, or (a later ``from_stage``) an ``out_dir`` without the finished stages
+        before it, of these inputs and settings (the message says what differs and where to
+        start instead).
     ReconstructionError, DegenerateError
         A stage failed (the message says which and what to try). WeakEvidenceError (a
         ReconstructionError): a joint's evidence is too weak to give its axis
@@ -261,29 +284,34 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
         out_dir = _check_output(out_dir, [set_a.root, set_a.image_dir, set_b.root,
                                           set_b.image_dir], overwrite, from_stage,
                                 example=set_a.root.parent / "model")
-    matches = None
+    records: dict[str, dict] = {}
     if first > 0:  # the configurations of out_dir, exactly as this run would compute them
         settings = stage_settings(config.sfm, config.dense, config.region)
         restart = ("start from the configurations instead (without --from, "
                    "from_stage='configurations'), which recomputes them")
-        records = {key: check_reusable(out_dir / key, iset, intr, known, settings, seed,
-                                       which=key.upper(), restart=restart)
-                   for key, iset, intr, known in (("a", set_a, intr_a, poses_a),
-                                                  ("b", set_b, intr_b, poses_b))}
+        conf_records = {key: check_reusable(out_dir / key, iset, intr, known, settings, seed,
+                                     which=key.upper(), restart=restart)
+                 for key, iset, intr, known in (("a", set_a, intr_a, poses_a),
+                                                ("b", set_b, intr_b, poses_b))}
         configurations = (out_dir / "a", out_dir / "b")
-        if first > 1:  # and its matches, made from them with this run's matching settings
-            check_matches(out_dir / "matches",
-                          {k: r["inputs_digest"] for k, r in records.items()}, config, seed,
-                          restart="start from the matches instead (--from matches, "
-                          "from_stage='matches'), which recomputes them from OUT/a and OUT/b")
-            matches = out_dir / "matches"
+        # and each later stage before the first, made from the one before it with this run's
+        # settings of that stage
+        upstream = {k: r["inputs_digest"] for k, r in conf_records.items()}
+        for name in list(STAGES)[1:first]:
+            records[name] = _CHECKS[name](
+                out_dir / name, upstream, config, seed,
+                restart=f"start from the {name} instead (--from {name}, from_stage="
+                f"'{name}'), which recomputes them")
+            upstream = records[name]["inputs_digest"]
     with contextlib.ExitStack() as stack:
         # the work folder (beside OUT: work_dir also removes those of interrupted runs) goes when
         # the run ends, published or not
         work = (stack.enter_context(work_dir(out_dir)) if out_dir is not None
                 else Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="artrecon-"))))
+        for name in records:  # the stages it starts after: copies, published with the rest
+            shutil.copytree(out_dir / name, work / name, symlinks=True)
         model = _run(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work, seed, config,
-                     progress, jobs, configurations, matches, first=first, last=last)
+                     progress, jobs, configurations, records, first=first, last=last)
         if model is not None:
             model.metadata["timings"]["total"] = time.perf_counter() - t_all
         if out_dir is not None:
@@ -312,38 +340,42 @@ def _stage_range(from_stage: str, to_stage: str) -> tuple[int, int]:
 def _check_output(out_dir, inputs, overwrite: bool, from_stage: str, example) -> Path:
     """The output folder of a run from ``from_stage``: a new folder (or, with ``overwrite``, an
     earlier result) for a run from the start; for a later start, an existing folder of an
-    earlier run, holding nothing this run would write (the matches, from ``"matches"``; a
+    earlier run, holding nothing this run would write (a stage from ``from_stage`` on; a
     model) unless ``overwrite`` (what it starts from is checked by the caller, against this
     run's inputs)."""
     out_dir = Path(out_dir)
     check_output_path(out_dir, inputs, example=example)
+    names = list(STAGES)
+    first = names.index(from_stage)
     holds_model = (out_dir / "model.json").exists()
-    holds_matches = (out_dir / MATCHES_RECORD).exists()
+    finished = [n for n in STAGE_RECORDS if (out_dir / STAGE_RECORDS[n]).exists()]
     if from_stage == "configurations":
         if (out_dir.is_dir() and not overwrite and not holds_model
                 and (out_dir / "a" / "configuration.json").is_file()):
-            stopped, next_stage = (("the configurations and matches of a run stopped after "
-                                    "them (--to matches)", "model") if holds_matches else
-                                   ("the configurations of a run stopped after them "
-                                    "(--to configurations)", "matches"))
-            raise InputError(f"output folder {out_dir} exists and holds {stopped}: continue "
-                             f"it with --from {next_stage}, or pass --overwrite to start it "
+            last = finished[-1] if finished else "configurations"
+            held = names[:names.index(last) + 1]
+            held = held[0] if len(held) == 1 else f"{', '.join(held[:-1])} and {held[-1]}"
+            raise InputError(f"output folder {out_dir} exists and holds the {held} of a run "
+                             f"stopped after them (--to {last}): continue it with --from "
+                             f"{names[names.index(last) + 1]}, or pass --overwrite to start it "
                              "over")
         return check_output_dir(out_dir, inputs, overwrite=overwrite, marker=OUTPUT_MARKERS,
                                 example=example)
     if out_dir.is_symlink() or not out_dir.is_dir():
+        stopped = " or ".join(f"--to {n}" for n in names[first - 1:-1])
         raise InputError(f"--from {from_stage}: {out_dir} is not a folder; --out must name the "
                          "output folder of an earlier run of these images (whole, or stopped "
-                         "with --to configurations or --to matches): run without --from to "
-                         "start from the beginning")
+                         f"with {stopped}): run without --from to start from the beginning")
     if holds_model and not overwrite:
         raise InputError(f"--from {from_stage}: {out_dir} holds a model already (model.json); "
                          "pass --overwrite to replace it (the stages before "
                          f"{from_stage} are kept), or choose another --out")
-    if from_stage == "matches" and holds_matches and not overwrite:
-        raise InputError(f"--from matches: {out_dir} holds matches already ({MATCHES_RECORD}): "
-                         "continue with --from model, or pass --overwrite to match again "
-                         "(its configurations are kept)")
+    later = [n for n in finished if names.index(n) >= first]
+    if later and not overwrite:
+        raise InputError(f"--from {from_stage}: {out_dir} holds {_HOLDS[later[0]]} already "
+                         f"({STAGE_RECORDS[later[0]]}): continue with --from "
+                         f"{names[names.index(later[-1]) + 1]}, or pass --overwrite to run "
+                         f"{from_stage} again (the stages before it are kept)")
     return out_dir
 
 
@@ -376,14 +408,15 @@ def _configuration_in_process(*args) -> None:
 
 def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, poses_a, poses_b,
          work: Path, seed: int, config: ReconstructConfig, progress: bool, jobs: int = 2,
-         configurations: tuple | None = None, matches: Path | None = None, first: int = 0,
+         configurations: tuple | None = None, records: dict | None = None, first: int = 0,
          last: int = len(STAGES) - 1) -> ArticulatedModel | None:
     """The stages ``first`` to ``last`` (indices in :data:`STAGES`) into ``work``: the
     configurations (computed, or reused from copies of ``configurations``; only read back when
-    ``first > 0``, the caller having checked them), the matches (computed into ``work/matches``,
-    or, when ``first > 1``, a copy of ``matches``, which the caller checked), then the model
-    (returned; None when the run stops earlier). The model stage reads the matches back from
-    ``work/matches`` either way."""
+    ``first > 0``, the caller having checked them), then each later stage, computed into
+    ``work/<stage>`` or, before ``first``, read from the copy there (``records``: the copies'
+    records, which the caller checked), then the model (returned; None when the run stops
+    earlier). Each stage reads the ones before it back from their folders either way."""
+    records = records or {}
     timings: dict[str, float] = {}
     folders = {"a": work / "a", "b": work / "b"}
     if configurations is not None:  # finished per-configuration folders: start from copies
@@ -417,16 +450,37 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
     for key, conf in confs.items():
         timings[f"sfm_{key}"] = conf.record["timings"]["sfm"]
         timings[f"dense_{key}"] = conf.record["timings"]["dense"]
+    stage = list(STAGES).index
+
+    def digest(name: str) -> str:  # the inputs_digest of a stage's folder in work
+        return read_json(work / STAGE_RECORDS[name])["inputs_digest"]
+
     with workers.single_threaded():
-        if first > 1:
-            shutil.copytree(matches, work / "matches", symlinks=True)
-            found = load_matches(work / "matches")
+        if first > stage("matches"):
+            found = load_matches(work / "matches", records["matches"])
         else:  # written, then read back: the model is the one a run from the folder gives
             found = match_stage(confs, work / "matches", config, seed)
-        if last == 1:
+        if last == stage("matches"):
             return None
-        sfms = {k: c.sfm for k, c in confs.items()}
-        denses = {k: c.dense for k, c in confs.items()}
-        occluders = {k: c.occluders for k, c in confs.items()}
+        if first > stage("links"):
+            links = load_links(work / "links", confs, records["links"])
+        else:
+            links = run_links(confs, found, work / "links", config, seed)
+        if last == stage("links"):
+            return None
+        if first > stage("joints"):
+            joints = load_joints(work / "joints", records["joints"])
+        else:
+            joints = run_joints(confs, links, work / "joints", config, seed, digest("links"))
+        if last == stage("joints"):
+            return None
+        if first > stage("refine"):
+            refined = load_refine(work / "refine", records["refine"])
+        else:
+            refined = run_refine(confs, found, links, joints, work / "refine", config, seed,
+                                 digest("joints"),
+                                 scale_known=poses_a is not None and poses_b is not None)
+        if last == stage("refine"):
+            return None
         return build_model(set_a, set_b, intr_a, intr_b, poses_a, poses_b, work, seed, config,
-                           sfms, denses, occluders, found, timings)
+                           confs, found, links, joints, refined, timings)

@@ -27,9 +27,12 @@ points and offsets marginalised (Schur complement), scaled by the reduced chi-sq
 1: each joint's 1-sigma figures (axis angle, axis line position, value) are written to its
 record (``Joint.confidence["refinement"]``) and the harness scores them.
 
-Solver: Levenberg-Marquardt with the points and offsets eliminated per match (6 x 6 blocks), as a
-bundle adjuster does; analytic derivatives in the points and offsets, central differences in the
-few global parameters (the base's motion and the joints).
+Solver (:mod:`artrecon.refine_solver`, the problem's residuals and normal equations too):
+Levenberg-Marquardt with the points and offsets eliminated per match (6 x 6 blocks), as a bundle
+adjuster does; analytic derivatives in the points and offsets, central differences in the few
+global parameters (the base's motion and the joints). This module holds the articulated side:
+the parameter layout and the links' motions from it, the noise levels' estimation, the
+uncertainty and the acceptance.
 
 Acceptance (the refinement replaces nothing it does not beat): a joint may take its refined
 figures only when the solver converged, the refined motion keeps the joint's direction of
@@ -48,11 +51,11 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy import sparse
 
 from artrecon.geometry import exp_so3, rotation_about
 from artrecon.model import Joint
 from artrecon.procrustes import Similarity
+from artrecon.refine_solver import Problem, Tracks, Views, covariance, extent, solve
 
 log = logging.getLogger(__name__)
 
@@ -64,8 +67,6 @@ MIN_OBSERVATIONS = 2
 #: The image noise is estimated no lower than this (pixels): the synthetic images' features are
 #: no better than a few hundredths of a pixel.
 MIN_SIGMA_PX = 0.02
-#: A Levenberg-Marquardt step that lowers the cost by less than this share of it ends the solve.
-CONVERGED_DECREASE = 1e-6
 #: Median of the chi-squared distribution with 3 degrees of freedom.
 CHI2_3_MEDIAN = 2.366
 
@@ -90,30 +91,6 @@ class RefineConfig:
     bundled scenes (seed 0) the refined axes were worse than the matches' fit in 9 of 13 joints
     (median 0.058 against 0.028 deg), so the joints stay; the refinement's uncertainty and
     figures are reported beside them (``Joint.confidence["refinement"]``)."""
-
-
-@dataclass(frozen=True)
-class Views:
-    """The cameras of one configuration, held fixed: ``x_cam = rotations[v] @ x + translations[v]``
-    and the mean focal length (pixels), which turns normalised image coordinates into pixels."""
-
-    rotations: np.ndarray
-    translations: np.ndarray
-    focal: np.ndarray
-
-
-@dataclass(frozen=True)
-class Tracks:
-    """2D observations of the matches' points in one configuration's images: observation ``o`` is
-    match ``point[o]`` seen in view ``view[o]`` at normalised image coordinates ``uv[o]``
-    (undistorted, ``x / z, y / z`` in the camera frame)."""
-
-    point: np.ndarray
-    view: np.ndarray
-    uv: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.point)
 
 
 @dataclass
@@ -299,118 +276,7 @@ def _tangent_basis(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(u, e1)
 
 
-# --------------------------------------------------------------------------- the problem
-
-class _Problem:
-    """The least-squares problem: residuals, their Jacobians (analytic in the points and offsets,
-    central differences in the few global parameters) and the normal equations with the points
-    eliminated (Schur complement), as in a bundle adjuster."""
-
-    def __init__(self, kin: _Kinematics, points: np.ndarray, labels: np.ndarray,
-                 tracks_a: Tracks, tracks_b: Tracks, views_a: Views, views_b: Views,
-                 loss_scale: float):
-        self.kin, self.labels = kin, labels
-        self.n = len(points)
-        self.points0 = points
-        self.ta, self.tb, self.va, self.vb = tracks_a, tracks_b, views_a, views_b
-        self.fa = views_a.focal[tracks_a.view]
-        self.fb = views_b.focal[tracks_b.view]
-        self.c2 = loss_scale ** 2
-        self.sig_a = np.full(len(tracks_a), 0.5)  # image noise (px) per observation: its
-        self.sig_b = np.full(len(tracks_b), 0.5)  # configuration's and population's
-        self.sigma_d = np.full(len(points), 1e-4)  # per match: its population's
-        self.step = 1e-6 * max(_extent(points), 1e-12)  # finite-difference step, lengths
-        self.sum_a = _aggregator(tracks_a.point, len(points))
-        self.sum_b = _aggregator(tracks_b.point, len(points))
-
-    # --- residuals
-    def _b_points(self, g: np.ndarray, X: np.ndarray, d: np.ndarray) -> np.ndarray:
-        scale, rots, trans = self.kin.motions(g)
-        lab = self.labels
-        return scale * _apply(rots[lab], X) + trans[lab] + d
-
-    def pixels(self, g, X, d) -> tuple[np.ndarray, np.ndarray]:
-        """Pixel residuals (k, 2) of A's and B's observations."""
-        ra = _project(self.va, self.ta, X)[0] - self.ta.uv
-        rb = _project(self.vb, self.tb, self._b_points(g, X, d))[0] - self.tb.uv
-        return ra * self.fa[:, None], rb * self.fb[:, None]
-
-    def cost(self, g, X, d) -> float:
-        ra, rb = self.pixels(g, X, d)
-        s2 = np.r_[np.sum(ra * ra, 1) / self.sig_a ** 2, np.sum(rb * rb, 1) / self.sig_b ** 2]
-        return float(0.5 * self.c2 * np.sum(np.log1p(s2 / self.c2))
-                     + 0.5 * np.sum(d * d / self.sigma_d[:, None] ** 2))
-
-    # --- normal equations
-    def normal_equations(self, g, X, d, with_globals: bool = True):
-        """Gauss-Newton blocks with Cauchy (IRLS) weights: per match the (6, 6) block of
-        (X_i, d_i) and its right-hand side, their (6, G) coupling to the globals, the globals'
-        (G, G) block and right-hand side."""
-        n, G = self.n, self.kin.n_params
-        # A: only the points
-        pa, ja = _project(self.va, self.ta, X)
-        ra = (pa - self.ta.uv) * (self.fa / self.sig_a)[:, None]
-        JXa = (self.fa / self.sig_a)[:, None, None] * (ja @ self.va.rotations[self.ta.view])
-        wa = 1.0 / (1.0 + np.sum(ra * ra, 1) / self.c2)
-        # B: the points, the offsets and the globals
-        Y = self._b_points(g, X, d)
-        pb, jb = _project(self.vb, self.tb, Y)
-        rb = (pb - self.tb.uv) * (self.fb / self.sig_b)[:, None]
-        Jy = (self.fb / self.sig_b)[:, None, None] * (jb @ self.vb.rotations[self.tb.view])
-        scale, rots, _ = self.kin.motions(g)
-        pt = self.tb.point
-        JXb = Jy @ (scale * rots[self.labels[pt]])
-        wb = 1.0 / (1.0 + np.sum(rb * rb, 1) / self.c2)
-        H = np.zeros((n, 6, 6))
-        bp = np.zeros((n, 6))
-        JXaw = (JXa * wa[:, None, None]).transpose(0, 2, 1)  # (ka, 3, 2)
-        H[:, :3, :3] += self.sum_a(JXaw @ JXa)
-        bp[:, :3] -= self.sum_a(_apply(JXaw, ra))
-        Jb = np.concatenate([JXb, Jy], axis=2)  # (kb, 2, 6)
-        Jbw = (Jb * wb[:, None, None]).transpose(0, 2, 1)  # (kb, 6, 2)
-        H += self.sum_b(Jbw @ Jb)
-        bp -= self.sum_b(_apply(Jbw, rb))
-        H[:, 3:, 3:] += np.eye(3) / self.sigma_d[:, None, None] ** 2
-        bp[:, 3:] -= d / self.sigma_d[:, None] ** 2
-        if not with_globals:
-            return H, bp, None, None, None
-        dY = np.zeros((G, n, 3))
-        for j in range(G):
-            h = self._step(j)
-            e = np.zeros(G)
-            e[j] = h
-            dY[j] = (self._b_points(g + e, X, d) - self._b_points(g - e, X, d)) / (2 * h)
-        Jg = Jy @ dY[:, pt].transpose(1, 2, 0)  # (kb, 2, G)
-        Hpg = self.sum_b(Jbw @ Jg)
-        Jgw = (Jg * wb[:, None, None]).reshape(-1, G)
-        Hgg = Jgw.T @ Jg.reshape(-1, G)
-        bg = -(Jgw.T @ rb.reshape(-1))
-        return H, bp, Hpg, Hgg, bg
-
-    def _step(self, j: int) -> float:
-        """Finite-difference step of global parameter j: lengths (translations, axis points)
-        scale with the points' extent, angles and log-scales do not."""
-        return self.step if j in self.kin.length_params else 1e-6
-
-
-def _apply(mats: np.ndarray, vecs: np.ndarray) -> np.ndarray:
-    """Row-wise products: (k, a, b) matrices times (k, b) vectors, (k, a)."""
-    return (mats @ vecs[:, :, None])[:, :, 0]
-
-
-def _aggregator(index: np.ndarray, n: int):
-    """A function summing (k, ...) values per ``index`` (k,) in [0, n): a sparse (n, k) sum,
-    built once per set of observations."""
-    k = len(index)
-    M = sparse.csr_matrix((np.ones(k), (index, np.arange(k))), shape=(n, k))
-
-    def total(values: np.ndarray) -> np.ndarray:
-        return np.asarray(M @ values.reshape(k, -1)).reshape((n,) + values.shape[1:])
-
-    return total
-
-
-def _image_noise(problem: _Problem, ra: np.ndarray, rb: np.ndarray, pops: np.ndarray) -> None:
+def _image_noise(problem: Problem, ra: np.ndarray, rb: np.ndarray, pops: np.ndarray) -> None:
     """Each population's image noise (pixels, robust: 1.4826 times the median absolute residual
     coordinate of its observations in both configurations: the same surface seen by the same
     camera; B's alone would take the offsets for image noise), set on the observations."""
@@ -427,69 +293,6 @@ def _median_by(index: np.ndarray, values: np.ndarray) -> np.ndarray:
         sel = index == k
         out[sel] = np.median(values[sel])
     return out
-
-
-def _project(views: Views, tracks: Tracks, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised image coordinates (k, 2) of the observed points and their derivative (k, 2, 3)
-    in the camera frame."""
-    xc = _apply(views.rotations[tracks.view], X[tracks.point]) + views.translations[tracks.view]
-    z = xc[:, 2]
-    z = np.where(np.abs(z) < 1e-9, 1e-9, z)
-    jac = np.zeros((len(xc), 2, 3))
-    jac[:, 0, 0] = jac[:, 1, 1] = 1.0 / z
-    jac[:, 0, 2] = -xc[:, 0] / z ** 2
-    jac[:, 1, 2] = -xc[:, 1] / z ** 2
-    return xc[:, :2] / z[:, None], jac
-
-
-def _solve(problem: _Problem, g: np.ndarray, X: np.ndarray, d: np.ndarray,
-           config: RefineConfig, with_globals: bool = True):
-    """Levenberg-Marquardt with the points eliminated; returns (g, X, d, cost, iterations,
-    converged)."""
-    cost = problem.cost(g, X, d)
-    lam = 1e-4
-    converged = False
-    it = 0
-    while it < config.max_iterations:
-        it += 1
-        H, bp, Hpg, Hgg, bg = problem.normal_equations(g, X, d, with_globals)
-        improved = False
-        while lam < 1e12:
-            Hd = H + lam * np.einsum("nii->ni", H)[:, :, None] * np.eye(6)
-            Hinv = np.linalg.inv(Hd)
-            if with_globals:
-                flat = Hpg.reshape(-1, len(g))
-                S = Hgg + lam * np.diag(np.diag(Hgg)) - flat.T @ (Hinv @ Hpg).reshape(-1, len(g))
-                rhs = bg - flat.T @ _apply(Hinv, bp).reshape(-1)
-                dg = np.linalg.lstsq(S, rhs, rcond=None)[0]
-                dp = _apply(Hinv, bp - Hpg @ dg)
-            else:
-                dg = np.zeros_like(g)
-                dp = _apply(Hinv, bp)
-            g1, X1, d1 = g + dg, X + dp[:, :3], d + dp[:, 3:]
-            c1 = problem.cost(g1, X1, d1)
-            if np.isfinite(c1) and c1 <= cost:
-                improved = True
-                small = cost - c1 <= CONVERGED_DECREASE * max(cost, 1e-300)
-                g, X, d, cost = g1, X1, d1, c1
-                lam = max(lam / 10, 1e-12)
-                break
-            lam *= 10
-        if not improved or small:
-            converged = True  # no step lowers the cost any more: a minimum
-            break
-    return g, X, d, cost, it, converged
-
-
-def _covariance(problem: _Problem, g, X, d) -> tuple[np.ndarray, np.ndarray]:
-    """Covariance of the global parameters with the points and offsets marginalised (the
-    inverse of the Schur complement of the Gauss-Newton information), and each match's (6, 6)
-    conditional covariance of (X_i, d_i)."""
-    H, _, Hpg, Hgg, _ = problem.normal_equations(g, X, d)
-    Hinv = np.linalg.inv(H)
-    G = Hgg.shape[0]
-    S = Hgg - Hpg.reshape(-1, G).T @ (Hinv @ Hpg).reshape(-1, G)
-    return np.linalg.pinv(S), Hinv
 
 
 def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tracks_b: Tracks,
@@ -553,7 +356,7 @@ def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tr
 
     tracks_a, tracks_b = keep(tracks_a), keep(tracks_b)
     kin = _Kinematics(joints, n_links, root, base, not scale_known, couplings)
-    problem = _Problem(kin, points_a[use], labels[use], tracks_a, tracks_b, views_a, views_b,
+    problem = Problem(kin, points_a[use], labels[use], tracks_a, tracks_b, views_a, views_b,
                        config.loss_scale)
     n, G = problem.n, kin.n_params
     g, X, d = np.zeros(G), points_a[use].copy(), np.zeros((n, 3))
@@ -562,19 +365,19 @@ def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tr
     ra, rb = problem.pixels(g, X, d)
     pops = np.unique(populations[use], return_inverse=True)[1]
     _image_noise(problem, ra, rb, pops)
-    floor_d = _extent(X) * 1e-7
+    floor_d = extent(X) * 1e-7
     if points_b is not None:
         miss = np.abs(problem._b_points(g, X, d) - np.asarray(points_b, float)[use])
         problem.sigma_d = np.maximum(1.4826 * _median_by(pops, np.median(miss, axis=1)), floor_d)
     else:
-        problem.sigma_d = np.full(n, max(_extent(X) * 1e-3, floor_d))
+        problem.sigma_d = np.full(n, max(extent(X) * 1e-3, floor_d))
     iterations, converged = 0, False
     for _ in range(max(1, config.rounds)):
-        g, X, d, cost, its, converged = _solve(problem, g, X, d, config)
+        g, X, d, cost, its, converged = solve(problem, g, X, d, config)
         iterations += its
         # EM: the image noise from the reprojection residuals (robust), the offsets' spread from
         # their estimates and their posterior variance
-        _, cov_p = _covariance(problem, g, X, d)
+        _, cov_p = covariance(problem, g, X, d)
         ra, rb = problem.pixels(g, X, d)
         _image_noise(problem, ra, rb, pops)
         # the offsets' spread per population by MacKay's evidence update: |d|^2 over the
@@ -587,9 +390,9 @@ def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tr
                   / (CHI2_3_MEDIAN * _median_by(pops, gamma) / 3.0))
         problem.sigma_d = np.maximum(np.sqrt(spread), floor_d)
     # the final solution and covariance at the final noise levels
-    g, X, d, cost_refined, its, converged = _solve(problem, g, X, d, config)
+    g, X, d, cost_refined, its, converged = solve(problem, g, X, d, config)
     iterations += its
-    cov_g, _ = _covariance(problem, g, X, d)
+    cov_g, _ = covariance(problem, g, X, d)
     ra, rb = problem.pixels(g, X, d)
     s2 = np.r_[np.sum(ra * ra, 1) / problem.sig_a ** 2, np.sum(rb * rb, 1) / problem.sig_b ** 2]
     weighted = float(np.sum(s2 / (1 + s2 / problem.c2))
@@ -657,10 +460,6 @@ def refine_joints(points_a: np.ndarray, labels: np.ndarray, tracks_a: Tracks, tr
              sum(accepted),
              len(joints), time.perf_counter() - t0)
     return Refinement(out_joints, transforms, accepted, records, summary)
-
-
-def _extent(points: np.ndarray) -> float:
-    return float(np.ptp(points, axis=0).max()) if len(points) else 1.0
 
 
 def _figures(j: Joint) -> dict:

@@ -23,11 +23,12 @@ evaluation's cache keys are exactly those of an unperturbed run. They act at fou
   (:func:`perturb_set`).
 - **the cross-configuration matches** (after the reconstruction): ``match_outliers``, the share
   of object matches whose B point is replaced by the B point of another match (wrong matches, the
-  same point cloud). The reconstruction's ``matches.npz`` is corrupted and segmentation, joints
-  and link points are redone through artrecon's own functions (:func:`resegment`); SfM and dense
-  points are the reconstruction's. Done after the fact rather than through a knob in
-  ``artrecon.ReconstructConfig``: artrecon's public settings stay free of test-only switches,
-  and the SfM/dense stages, which the corruption does not touch, are reused from the cache.
+  same point cloud). The reconstruction's matches (``links/matches.npz``) are corrupted and
+  segmentation, joints and link points are redone through artrecon's own functions
+  (:func:`resegment`); SfM and dense points are the reconstruction's. Done after the fact
+  rather than through a knob in ``artrecon.ReconstructConfig``: artrecon's public settings stay
+  free of test-only switches, and the SfM/dense stages, which the corruption does not touch, are
+  reused from the cache.
 
 Fewer views need no perturbation: ``--views``.
 """
@@ -51,6 +52,7 @@ from scipy.spatial.transform import Rotation
 from artrecon.articulation import articulate
 from artrecon.dense import DensePoints
 from artrecon.files import read_ply
+from artrecon.links_stage import fitted_matches
 from artrecon.model import ArticulatedModel
 from artrecon.reconstruct import ReconstructConfig, with_settings
 from sim import cache, robot
@@ -407,7 +409,9 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0,
               settings: dict | None = None) -> dict:
     """Redo segmentation, joints and link points of a reconstruction with wrong matches.
 
-    Reads ``model_dir``'s ``matches.npz`` and dense points, corrupts the object matches
+    Reads the matches the links of ``model_dir`` were fitted to (its links stage's
+    ``links/matches.npz``, :func:`artrecon.links_stage.fitted_matches`: the guided ones
+    appended) and its dense points, corrupts the object matches
     (:func:`corrupt_matches`), runs the pipeline's own steps after matching on them
     (:func:`artrecon.articulation.articulate`: segmentation, the base anchored to the background,
     dense labelling -- geometric only: the image cues need the SfM images --, tree, joints and
@@ -417,7 +421,7 @@ def resegment(model_dir: Path, out_dir: Path, fraction: float, seed: int = 0,
     differ from the defaults, as for artrecon.reconstruct.with_settings (the scene's).
     """
     model_dir, out_dir = Path(model_dir), Path(out_dir)
-    m = dict(np.load(model_dir / "matches.npz"))
+    m = fitted_matches(model_dir / "links")
     pa = m["points_a"]
     pb, wrong = corrupt_matches(m["points_b"], fraction, np.random.default_rng([seed, 99]))
     dense = {}

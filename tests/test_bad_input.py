@@ -300,7 +300,7 @@ def out_under_a_file(t):
 
 # running part of the run (--from / --to, artrecon.reconstruct.STAGES)
 @case("--from sfm", "no such stage", "configurations (writes", "matches (writes",
-      "model (writes")
+      "links (writes", "joints (writes", "refine (writes", "model (writes")
 def stage_unknown(t):
     return _args(*_pair(t), t / "o", "--from", "sfm")
 
@@ -433,59 +433,71 @@ def _matches_record(t: Path, out: Path, configurations: dict | None = None,
 
 
 @case("holds no finished matches stage", "no matches.json", "--from matches")
-def stage_from_model_without_matches(t):
+def stage_from_links_without_matches(t):
     pair = _pair(t)
     _finished_configurations(t, t / "o")
-    return _args(*pair, t / "o", "--from", "model")
+    return _args(*pair, t / "o", "--from", "links")
 
 
 @case("the matches in", "other configurations or settings", "match.ratio: 0.8 there, 0.7 now",
       "not reused", "--from matches")
-def stage_from_model_with_other_match_settings(t):
+def stage_from_links_with_other_match_settings(t):
     pair = _pair(t)
     _matches_record(t, t / "o")
-    return _args(*pair, t / "o", "--from", "model", "--set", "match.ratio=0.7")
+    return _args(*pair, t / "o", "--from", "links", "--set", "match.ratio=0.7")
 
 
 @case("segmentation.covariances: True there, False now", "--from matches")
-def stage_from_model_without_the_covariances_matched(t):
+def stage_from_links_without_the_covariances_matched(t):
     pair = _pair(t)
     _matches_record(t, t / "o")
-    return _args(*pair, t / "o", "--from", "model", "--set", "segmentation.covariances=0")
+    return _args(*pair, t / "o", "--from", "links", "--set", "segmentation.covariances=0")
 
 
 @case("configuration B is not the one they were matched in", "--from matches")
-def stage_from_model_with_matches_of_other_configurations(t):
+def stage_from_links_with_matches_of_other_configurations(t):
     pair = _pair(t)
     digests = _finished_configurations(t, t / "o")
     _matches_record(t, t / "o", configurations={**digests, "b": "0" * 64})
-    return _args(*pair, t / "o", "--from", "model")
+    return _args(*pair, t / "o", "--from", "links")
 
 
 @case("the matches in", "are incomplete", "object.npz is missing", "--from matches")
-def stage_from_model_with_a_matches_file_missing(t):
+def stage_from_links_with_a_matches_file_missing(t):
     pair = _pair(t)
     _matches_record(t, t / "o")
     (t / "o" / "matches" / "object.npz").unlink()
-    return _args(*pair, t / "o", "--from", "model")
+    return _args(*pair, t / "o", "--from", "links")
 
 
 @case("are incomplete", "the record does not name the stage's files", "--from matches")
-def stage_from_model_with_a_record_of_too_few_files(t):
+def stage_from_links_with_a_record_of_too_few_files(t):
     pair = _pair(t)
     _matches_record(t, t / "o", files={"object.npz": b"the object"})
-    return _args(*pair, t / "o", "--from", "model")
+    return _args(*pair, t / "o", "--from", "links")
 
 
 @case("are incomplete", "object.npz is not the file the record names", "--from matches")
-def stage_from_model_with_a_matches_file_changed(t):
+def stage_from_links_with_a_matches_file_changed(t):
     pair = _pair(t)
     _matches_record(t, t / "o")
     (t / "o" / "matches" / "object.npz").write_bytes(b"half of it")
-    return _args(*pair, t / "o", "--from", "model")
+    return _args(*pair, t / "o", "--from", "links")
 
 
-@case("--from matches", "holds matches already", "--from model", "--overwrite")
+@case("holds no finished links stage", "no links.json", "--from links")
+def stage_from_joints_without_links(t):
+    pair = _pair(t)
+    _matches_record(t, t / "o")
+    return _args(*pair, t / "o", "--from", "joints")
+
+
+@case("--from joints comes after --to links", "nothing to run")
+def stage_from_joints_after_to_links(t):
+    return _args(*_pair(t), t / "o", "--from", "joints", "--to", "links")
+
+
+@case("--from matches", "holds matches already", "--from links", "--overwrite")
 def stage_from_matches_over_matches(t):
     pair = _pair(t)
     _matches_record(t, t / "o")
@@ -493,7 +505,7 @@ def stage_from_matches_over_matches(t):
 
 
 @case("holds the configurations and matches of a run stopped after them", "--to matches",
-      "--from model", "--overwrite")
+      "--from links", "--overwrite")
 def stage_from_the_start_over_matches(t):
     pair = _pair(t)
     _matches_record(t, t / "o")

@@ -209,7 +209,8 @@ def _model_dir(tmp_path, obj):
         (d / c).mkdir(parents=True)
         write_ply(d / c / "dense.ply", pts, np.tile([0.0, 0.0, 1.0], (len(pts), 1)),
                   np.zeros((len(pts), 3), np.uint8))
-    np.savez(d / "matches.npz", points_a=obj.points_a, points_b=obj.points_b,
+    (d / "links").mkdir()
+    np.savez(d / "links" / "matches.npz", points_a=obj.points_a, points_b=obj.points_b,
              background_a=np.zeros((0, 3)), background_b=np.zeros((0, 3)))
     ArticulatedModel(links=[Link(points=obj.points_a[:3], match_indices=np.arange(3))],
                      joints=[]).save(d / "model.json")
@@ -259,7 +260,7 @@ def test_resegment_runs_the_pipelines_steps(tmp_path):
     keep = (labels == 0) | ((labels == 1) & (d > 0.6 * size))
     assert 50 < np.sum(keep & (labels == 1)) < np.sum(labels == 1)
     folder = _model_dir(tmp_path, obj)  # dense points: every point of both links
-    np.savez(folder / "matches.npz", points_a=pa[keep], points_b=pb[keep],
+    np.savez(folder / "links" / "matches.npz", points_a=pa[keep], points_b=pb[keep],
              background_a=np.zeros((0, 3)), background_b=np.zeros((0, 3)))
     summary = perturb.resegment(folder, tmp_path / "out", 0.1, seed=0)
     assert summary["links"] == 2 and summary["joints"] == 1

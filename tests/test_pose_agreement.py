@@ -120,8 +120,8 @@ def test_later_failures_name_poses_that_barely_passed():
     SfM, no poses) leave the error as it was."""
     from types import SimpleNamespace
 
+    from artrecon.diagnosis import blame_poses
     from artrecon.errors import SingleBodyError, WeakEvidenceError
-    from artrecon.model_stage import blame_poses
 
     cfg = sfm.SfMConfig()
 

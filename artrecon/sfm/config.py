@@ -95,4 +95,4 @@ class SfMConfig:
     """Given poses that pass the check but agree with the images worse than this (median
     epipolar distance, pixels; 2.3 x the 0.13 px of exact poses) are named as the likely cause
     when segmentation or a joint's evidence fails later
-    (:func:`artrecon.model_stage.blame_poses`)."""
+    (:func:`artrecon.diagnosis.blame_poses`)."""
