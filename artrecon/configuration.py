@@ -277,19 +277,23 @@ def _reconstruct_configuration(image_set, out_dir: Path, intrinsics, poses, sfm_
     out_dir.mkdir(parents=True)
     timings: dict[str, float] = {}
     t = time.perf_counter()
-    sfm = run_sfm(image_set, out_dir, intrinsics, poses, sfm_config, seed, progress)
-    layout = None
+    reference_intrinsics, reference = None, {}
     if poses is None and image_set.cameras_file is not None:
         reference_intrinsics, reference = load_cameras_json(image_set.cameras_file)
-        if len(reference) >= 3:
-            layout = layout_error(sfm, reference)
-            log.info("configuration %s: SfM cameras vs cameras.json poses: %.2f%% of their "
-                     "spread", which, 100 * layout)
-            if layout > sfm_config.max_layout_error:
-                raise ReconstructionError(
-                    f"configuration {which}: the SfM cameras disagree with the poses in "
-                    f"{image_set.cameras_file} by {100 * layout:.1f}% of their spread"
-                    + _layout_cause(intrinsics, reference_intrinsics))
+    # without reference poses to check the cameras' layout against, the images check the given
+    # focal length (held fixed in SfM) themselves
+    sfm = run_sfm(image_set, out_dir, intrinsics, poses, sfm_config, seed, progress,
+                  check_focal=len(reference) < 3)
+    layout = None
+    if len(reference) >= 3:
+        layout = layout_error(sfm, reference)
+        log.info("configuration %s: SfM cameras vs cameras.json poses: %.2f%% of their spread",
+                 which, 100 * layout)
+        if layout > sfm_config.max_layout_error:
+            raise ReconstructionError(
+                f"configuration {which}: the SfM cameras disagree with the poses in "
+                f"{image_set.cameras_file} by {100 * layout:.1f}% of their spread"
+                + _layout_cause(intrinsics, reference_intrinsics))
     timings["sfm"] = time.perf_counter() - t
     t, cpu = time.perf_counter(), time.process_time()
     dense = dense_points(sfm, dense_config)
@@ -330,8 +334,8 @@ def _reconstruct_configuration(image_set, out_dir: Path, intrinsics, poses, sfm_
         "cameras": "given poses (held fixed)" if poses is not None else "SfM from the images",
         "registered_images": rec.num_reg_images(), "sparse_points": rec.num_points3D(),
         "dense_points": len(dense), "pose_agreement": sfm.pose_agreement,
-        "layout_error": layout, "timings": {**timings, **{f"sfm_{k}": v for k, v in
-                                                          sfm.timings.items()}},
+        "layout_error": layout, "focal_check": sfm.focal_check,
+        "timings": {**timings, **{f"sfm_{k}": v for k, v in sfm.timings.items()}},
         "settings": settings,
     }
     write_json_atomic(record_path, record)  # last: a folder without it is incomplete
@@ -364,7 +368,8 @@ def load_configuration(folder: str | Path) -> Configuration:
     rec = pycolmap.Reconstruction(str(folder / "sparse" / "0"))
     sfm = SfMResult(rec, folder / "database.db", image_dir,
                     folder / "sparse" / "0", int(record["num_images"]),
-                    record.get("timings", {}), record.get("pose_agreement"))
+                    record.get("timings", {}), record.get("pose_agreement"),
+                    record.get("focal_check"))
     points, normals, colours = read_ply(folder / "dense.ply")
     views = np.load(folder / "dense_views.npz")
     n_images = int(views["n_images"])

@@ -127,6 +127,8 @@ RANGES: dict[str, Range | Choice] = {
     "sfm.min_registered_fraction": Range(0, 1, _FRACTION, **_OPEN),
     "sfm.num_threads": Range(-1, 1024, "-1 or 0: all cores"),
     "sfm.max_layout_error": Range(0, 1, "a fraction of the cameras' spread", **_OPEN),
+    "sfm.max_focal_mismatch": Range(0, 100, _FRACTION, **_OPEN),
+    "sfm.min_focal_reprojection_gain": Range(1, 1000, "a factor"),
     "sfm.max_pose_epipolar_px": Range(0, 1000, "pixels", **_OPEN),
     "sfm.min_pose_triangulated_share": Range(0, 1, _FRACTION),
     "sfm.suspect_pose_epipolar_px": Range(0, 1000, "pixels", **_OPEN),

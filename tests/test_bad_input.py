@@ -278,6 +278,13 @@ def out_is_a_file(t):
     return _args(*_pair(t), t / "notes.txt", "--overwrite")
 
 
+@case("is a file, not a folder", "never replaced")
+def out_is_a_file_without_overwrite(t):
+    """The issue's case: without --overwrite a file was called an existing 'output folder'."""
+    (t / "notes.txt").write_text("the user's notes")
+    return _args(*_pair(t), t / "notes.txt")
+
+
 @case("output folder", "exists", "--overwrite")
 def out_exists(t):
     (t / "o").mkdir()
@@ -554,6 +561,17 @@ def test_every_tunable_field_has_a_checked_range():
     assert set(tunable) == set(RANGES), set(tunable) ^ set(RANGES)
     for key, default in tunable.items():
         assert check_setting(key, default, default) == default, key
+
+
+def test_documented_float_setting_is_taken_from_the_command_line(tmp_path, capsys, monkeypatch):
+    """--set joints.revolute_min_angle=0.1 (a documented numpy float field) was refused as 'a
+    float64 field cannot be set here'; now the command gets past its settings to the next check
+    (the same folder twice: nothing moved), with no word about the setting."""
+    monkeypatch.chdir(tmp_path)
+    a = write_images(tmp_path / "a")
+    code, err = refused(main, _args(a, a, tmp_path / "o", "--set",
+                                    "joints.revolute_min_angle=0.1"), capsys, tmp_path)
+    assert code == 2 and "did not move" in err and "revolute_min_angle" not in err, err
 
 
 def test_settings_that_were_refused_or_crashed_before(tmp_path):

@@ -176,6 +176,36 @@ def test_layout_error_catches_a_folded_ring():
     assert sfm.layout_error(result(folded), ref) > sfm.SfMConfig().max_layout_error
 
 
+def test_given_focal_refused_only_when_the_images_clearly_disagree():
+    """check_given_focal: refused when the images support a focal length more than
+    max_focal_mismatch away *and* fit it much better; right intrinsics (ratio ~1) and a focal
+    length that drifts without fitting better (weak geometry) pass. Figures as measured on the
+    hinge fixture's plain folder A (see SfMConfig.max_focal_mismatch)."""
+    from artrecon.errors import MismatchError
+    from artrecon.sfm.focal_check import check_given_focal
+
+    config = sfm.SfMConfig()
+
+    def figures(given, supported, before, after):
+        return {"given_fx_px": given, "given_focal_px": given, "supported_focal_px": supported,
+                "ratio": given / supported, "reprojection_given_px": before,
+                "reprojection_free_px": after}
+
+    check_given_focal({}, config, "A")  # not one camera: nothing to check
+    check_given_focal(figures(554.26, 554.34, 0.167, 0.167), config, "A")  # right
+    check_given_focal(figures(1108.5, 558.5, 0.30, 0.20), config, "A")  # drift, no better fit
+    check_given_focal(figures(580.0, 554.3, 0.60, 0.15), config, "A")  # within the margin
+    for given, supported, before, after in [(1108.5, 558.5, 1.30, 0.12),
+                                            (277.1, 524.0, 1.15, 0.25)]:
+        with pytest.raises(MismatchError) as info:
+            check_given_focal(figures(given, supported, before, after), config, "SfM on A")
+        msg = str(info.value)
+        assert msg.startswith("SfM on A:") and "Likely cause: the intrinsics" in msg, msg
+        assert f"f ≈ {supported:.0f} px" in msg and f"fx is {given:.0f} px" in msg, msg
+        assert f"ratio {given / supported:.2f}" in msg and "leave --intrinsics out" in msg, msg
+        assert info.value.agreement["supported_focal_px"] == supported
+
+
 def _blobs(size, seed):
     """A grey image of smooth blobs: SIFT finds keypoints in every octave."""
     rng = np.random.default_rng(seed)

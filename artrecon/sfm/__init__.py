@@ -29,7 +29,8 @@ Two modes:
 The package: :mod:`~artrecon.sfm.stage` (:func:`run_sfm`, :class:`SfMResult`) runs the steps
 of :mod:`~artrecon.sfm.extraction` (features into the database), :mod:`~artrecon.sfm.pairs`
 (which images to match; matching and verification), :mod:`~artrecon.sfm.mapping` (incremental,
-self-calibrated second pass, known poses) and :mod:`~artrecon.sfm.pose_check`; its settings are
+self-calibrated second pass, known poses), :mod:`~artrecon.sfm.pose_check` and
+:mod:`~artrecon.sfm.focal_check` (given intrinsics against the images); its settings are
 :class:`~artrecon.sfm.config.SfMConfig`. The names below are its face (what the other stages,
 the harness and the tests use).
 """

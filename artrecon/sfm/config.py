@@ -72,6 +72,20 @@ class SfMConfig:
     """When reference poses exist (cameras.json) but SfM ran from the images, the SfM camera
     centres, aligned by a similarity, must match them within this fraction of the cameras' spread
     (a folded ring of cameras is far off; a good model is ~0.1% off)."""
+    max_focal_mismatch: float = 0.10
+    """Given intrinsics on image folders without reference poses (no cameras.json to check the
+    cameras' layout against): refused when a bundle adjustment of a copy of the SfM result with
+    the focal length free (:func:`artrecon.sfm.focal_check.supported_focal`) moves it further
+    than this fraction from the given one (SfM holds given intrinsics fixed, so a wrong focal
+    length only bends the layout, and the dense stage failed minutes later blaming the poses).
+    Measured on the hinge fixture (36 views, true f 554.26 px), plain folder A: given 554.26 ->
+    554.34 px; given 2 x -> 558.5 px; 1.15 x -> 555.2 px; 0.5 x -> 524.0 px. 10% is about
+    twice the worst of those estimates' errors (5.5%, from the half focal length)."""
+    min_focal_reprojection_gain: float = 2.0
+    """... and freeing it divides the mean reprojection error by at least this: a focal length
+    that drifts on weak geometry does not fit the images much better. Same runs: right 0.167 ->
+    0.167 px (1.0 x); 2 x 1.30 -> 0.12 px (11 x); 1.15 x 0.96 -> 0.16 px (6.1 x); 0.5 x 1.15 ->
+    0.25 px (4.7 x)."""
     max_pose_epipolar_px: float = 0.45
     """Given camera poses (known-pose triangulation) are refused when the images' verified
     two-view matches of either configuration lie further than this (median Sampson distance,

@@ -24,6 +24,7 @@ from artrecon.io import ImageSet, Intrinsics
 from artrecon.procrustes import similarity_transform
 from artrecon.sfm.config import CALIBRATION_FILE, SfMConfig
 from artrecon.sfm.extraction import extract, read_features
+from artrecon.sfm.focal_check import check_given_focal, supported_focal
 from artrecon.sfm.mapping import map_calibrated, map_incremental, triangulate_known_poses
 from artrecon.sfm.pairs import match, select_pairs
 from artrecon.sfm.pose_check import check_pose_agreement, pose_agreement
@@ -63,6 +64,9 @@ class SfMResult:
     pose_agreement : dict or None
         With given camera poses: how well they agree with the images
         (:func:`~artrecon.sfm.pose_check.pose_agreement`).
+    focal_check : dict or None
+        With ``check_focal``: the focal length the images support against the given one
+        (:func:`~artrecon.sfm.focal_check.supported_focal`).
     """
 
     reconstruction: pycolmap.Reconstruction
@@ -72,6 +76,7 @@ class SfMResult:
     num_images: int
     timings: dict = field(default_factory=dict)
     pose_agreement: dict | None = None
+    focal_check: dict | None = None
 
     def T_world_camera(self) -> dict[str, np.ndarray]:
         """Pose (4, 4) per registered image name, OpenCV convention, SfM world frame."""
@@ -169,7 +174,7 @@ class _StepClock:
 
 def run_sfm(image_set: ImageSet, out_dir: str | Path, intrinsics: Intrinsics | None = None,
             poses: dict[str, np.ndarray] | None = None, config: SfMConfig = SfMConfig(),
-            seed: int = 0, progress: bool = True) -> SfMResult:
+            seed: int = 0, progress: bool = True, check_focal: bool = False) -> SfMResult:
     """Cameras and sparse points of one configuration.
 
     Parameters
@@ -188,6 +193,10 @@ def run_sfm(image_set: ImageSet, out_dir: str | Path, intrinsics: Intrinsics | N
     seed : int
     progress : bool
         Show a tqdm bar fed from COLMAP's mapping callbacks.
+    check_focal : bool
+        With given intrinsics and no poses: check the given focal length against the one the
+        images support (:mod:`~artrecon.sfm.focal_check`), for image folders without reference
+        poses to check the cameras' layout against. A few seconds.
 
     Returns
     -------
@@ -200,6 +209,9 @@ def run_sfm(image_set: ImageSet, out_dir: str | Path, intrinsics: Intrinsics | N
     PoseMismatchError
         Given ``poses`` that disagree with the images
         (:func:`~artrecon.sfm.pose_check.check_pose_agreement`).
+    MismatchError
+        With ``check_focal``: the images support a clearly different focal length than the
+        given one (:func:`~artrecon.sfm.focal_check.check_given_focal`).
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -230,6 +242,16 @@ def run_sfm(image_set: ImageSet, out_dir: str | Path, intrinsics: Intrinsics | N
             else:
                 rec = triangulate_known_poses(image_set, db_path, out_dir, intrinsics, poses,
                                               config, seed)
+        focal = None
+        if check_focal and intrinsics is not None and poses is None:
+            with clock("focal_check"):
+                focal = supported_focal(rec, config)
+    if focal:
+        log.info("%s: the given focal length %.2f px; the images support %.2f px (mean "
+                 "reprojection error %.3f px freed, %.3f px given)", image_set.root,
+                 focal["given_focal_px"], focal["supported_focal_px"],
+                 focal["reprojection_free_px"], focal["reprojection_given_px"])
+        check_given_focal(focal, config, f"SfM on {image_set.image_dir}")
     agreement = None
     if poses is not None:
         with clock("pose_check"):
@@ -246,7 +268,7 @@ def run_sfm(image_set: ImageSet, out_dir: str | Path, intrinsics: Intrinsics | N
              image_set.root, rec.num_reg_images(), len(image_set.names), rec.num_points3D(),
              rec.compute_mean_reprojection_error())
     return SfMResult(rec, db_path, image_set.image_dir, model_dir, len(image_set.names), timings,
-                     agreement)
+                     agreement, focal)
 
 
 def layout_error(result: SfMResult, poses: dict[str, np.ndarray]) -> float:
