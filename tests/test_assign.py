@@ -258,24 +258,29 @@ def test_free_space_is_not_seen_through_a_hole_in_a_wall():
     assert three.status(front, 0.01, 0.004)[1][0, 0]
 
 
+def _slab_over_table(rng) -> _Surface:
+    """A's surface seen by one camera 0.6 m above: a base slab (z = 0.05, x < 0) over the table
+    (z = 0); what lies under the slab is hidden from it."""
+    T = _camera(0.0, 0.0, height=0.6)
+    K = np.array([[F, 0, W / 2], [0, F, H / 2], [0, 0, 1]])
+    table = np.c_[rng.uniform(-0.2, 0.2, 4000), rng.uniform(-0.1, 0.1, 4000), np.zeros(4000)]
+    slab = np.c_[rng.uniform(-0.2, 0.0, 2000), rng.uniform(-0.1, 0.1, 2000),
+                 np.full(2000, 0.05)]
+    view = CameraView(K, T, np.zeros((H, W), np.float32))
+    return _Surface([view], np.r_[table[table[:, 0] > 0], slab], cell=4)
+
+
 def test_free_space_label_for_a_hidden_counterpart():
     """Points of B whose counterpart is hidden in A (no geometric fit either way): the hypothesis
     that puts them where A's camera saw empty table is violated; the other (hidden under the base)
     is not."""
-    T = _camera(0.0, 0.0, height=0.6)
-    K = np.array([[F, 0, W / 2], [0, F, H / 2], [0, 0, 1]])
     rng = np.random.default_rng(1)
-    # A: a base slab on top (z = 0.05, x < 0) over the table (z = 0); B points on the table
-    # at x in (0.02, 0.08) belong to a link that slid out from under the base by +0.1
-    table = np.c_[rng.uniform(-0.2, 0.2, 4000), rng.uniform(-0.1, 0.1, 4000), np.zeros(4000)]
-    slab = np.c_[rng.uniform(-0.2, 0.0, 2000), rng.uniform(-0.1, 0.1, 2000),
-                 np.full(2000, 0.05)]
-    occ_a = np.r_[table[table[:, 0] > 0], slab]
-    view = CameraView(K, T, np.zeros((H, W), np.float32))
+    # B points above the table at x in (0.02, 0.08) belong to a link that slid out from under
+    # the base by +0.1
+    surf_a = _slab_over_table(rng)
     src = np.c_[rng.uniform(0.02, 0.08, 200), rng.uniform(-0.05, 0.05, 200), np.full(200, 0.03)]
     stay = Similarity(np.eye(3), np.zeros(3), 1.0)
     back = Similarity(np.eye(3), np.array([-0.1, 0.0, 0.0]), 1.0)
-    surf_a = _Surface([view], occ_a, cell=4)
     dst = np.c_[rng.uniform(0.3, 0.4, 50), rng.uniform(-0.1, 0.1, 50), np.zeros(50)]  # no fit
     matches = np.array([[0.05, 0.0, 0.03], [0.06, 0.0, 0.03]])
     lab = label_points(src, np.tile([0, 0, 1.0], (200, 1)), dst, [stay, back], [1e-4, 1e-4],
@@ -292,14 +297,7 @@ def test_table_is_no_tie_where_only_the_other_links_counterpart_is_hidden():
     (the base's counterpart in view, on no surface of A). Neither lands on A's surface, yet the
     cues are no tie, and the static neighbours must not pull the floor to the base (they did:
     chest's drawer floor in B, 1476 points, went to the carcass)."""
-    T = _camera(0.0, 0.0, height=0.6)
-    K = np.array([[F, 0, W / 2], [0, F, H / 2], [0, 0, 1]])
-    rng = np.random.default_rng(3)
-    table = np.c_[rng.uniform(-0.2, 0.2, 4000), rng.uniform(-0.1, 0.1, 4000), np.zeros(4000)]
-    slab = np.c_[rng.uniform(-0.2, 0.0, 2000), rng.uniform(-0.1, 0.1, 2000),
-                 np.full(2000, 0.05)]
-    view = CameraView(K, T, np.zeros((H, W), np.float32))
-    surf_a = _Surface([view], np.r_[table[table[:, 0] > 0], slab], cell=4)
+    surf_a = _slab_over_table(np.random.default_rng(3))
     X, Y = np.meshgrid(np.arange(0.02, 0.08, 0.002), np.arange(-0.03, 0.031, 0.002))
     src = np.c_[X.ravel(), Y.ravel(), np.full(X.size, 0.03)]
     # static points beside the floor, at its height (the carcass's side walls' lower edge)
