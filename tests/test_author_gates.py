@@ -37,19 +37,11 @@ KNOWN_MISSES: dict[tuple[str, str], str] = {}
 # carcass by the table in the dense labelling's second pass) passes since the labelling's
 # silent-fit tie takes hidden counterparts into account: 0.973 (A 0.958, B 0.992)
 
-#: Plain xfails (see test_gates.MACHINE_DEPENDENT): gates these objects passed at 09052e6 on an
-#: AVX-512 machine of this kind, where CI's machine (another CPU) last measured older code and
-#: still failed one of them, and whose figures sit near their limits or changed with the CPU
-#: elsewhere. Chest's entries went at 54277f2: its captures had differed from run to run (the
-#: renderer drew its 322-pixel-wide texture sheared, reading beyond the buffer), and with the
-#: renderer fixed its joints (0.05 and 0.03 deg), tree and both motions (lid 29.93 of 29.99 deg
-#: at 4.1 N, drawer 98.0 of 100.0 mm at 9.5 N) pass.
-MACHINE_DEPENDENT: dict[tuple[str, str], str] = {
-    ("mm_cabinet", "manipulation"):
-        "passes on the AVX-512 machine at fc5dda2's merge (2.2 N); with the seg4 branch alone "
-        "the gripper stopped 6.0 mm from its grasp; at 30faea6 2.18 N against the 2 N floor; "
-        "passes at 59aa268 (door 2.5 N)",
-}
+#: Plain xfails (see test_gates.MACHINE_DEPENDENT): none. mm_cabinet's manipulation was one (the
+#: gripper stopped 6.0 mm from its grasp with one branch; 2.18 N against the 2 N floor at
+#: 30faea6); it passed (XPASS) in CI on this machine at 54277f2, 1943f29 and cce5deb (2.5 N at
+#: 59aa268), so it is gated like any other.
+MACHINE_DEPENDENT: dict[tuple[str, str], str] = {}
 
 #: Objects whose listed misses were not measured at the current code (plain xfails).
 NOT_REMEASURED: frozenset[str] = frozenset()
