@@ -164,13 +164,26 @@ def test_the_joints_are_refined_against_the_images_with_an_uncertainty_that_cove
     assert rec["verdict"].startswith(("kept the initial joint", "the axis moved")), rec
     assert rec["refined"]["motion"] == pytest.approx(j.motion, abs=3 * rec["state"] + 1e-9)
     if route == "poses":
-        to_world, rot, scale = (lambda p: p), np.eye(3), 1.0
+        to_world, rot, scale, align = (lambda p: p), np.eye(3), 1.0, 0.0
     else:
-        S, _ = align_to_truth(out / "a" / "sparse" / "0", rendered_a(request))
+        S, centre_err = align_to_truth(out / "a" / "sparse" / "0", rendered_a(request))
         to_world, rot, scale = S.apply, S.rotation, S.scale
+        # the error is measured through the SfM frame's alignment to the truth, whose own error
+        # the refinement's sigma does not hold: its standard error (the camera centres' RMS
+        # residual over the root of their number) joins in quadrature (CI at d04dad7: 0.052 mm
+        # against 3 sigma of 0.031 mm plus a fixed 0.010 mm, with the centres' residual unused)
+        align = float(np.sqrt(np.mean(centre_err ** 2) / len(centre_err)))
+    # ... and its rotation's, that standard error over the ring's radius (degrees)
+    ring = 0.0 if route == "poses" else float(np.sqrt(np.mean(np.sum(
+        (rendered_a(request).T_world_camera[:, :3, 3]
+         - rendered_a(request).T_world_camera[:, :3, 3].mean(0)) ** 2, axis=1))))
+    align_deg = float(np.degrees(align / ring)) if ring > 0 else 0.0
     ang, dist, dq = _joint_errors(model, to_world, rot)
-    assert ang <= 3 * rec["axis_deg"] + 1e-3, (ang, rec)
-    assert dist <= 3 * rec["position"] * scale + 1e-5, (dist, rec)
+    print(f"{route}: axis {ang:.4f} deg (sigma {rec['axis_deg']:.4f}), line {dist * 1e3:.4f} mm "
+          f"(sigma {rec['position'] * scale * 1e3:.4f}, alignment {align * 1e3:.4f} mm, "
+          f"{align_deg:.4f} deg)")
+    assert ang <= 3 * np.hypot(rec["axis_deg"], align_deg) + 1e-3, (ang, align_deg, rec)
+    assert dist <= 3 * np.hypot(rec["position"] * scale, align) + 1e-6, (dist, align, rec)
     assert np.radians(dq) <= 3 * rec["state"] + 1e-5, (dq, rec)
     # reloaded from model.json, the record is the same
     again = ArticulatedModel.load(out / "model.json").joints[0].confidence["refinement"]
