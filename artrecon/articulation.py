@@ -11,6 +11,7 @@ harness (``sim.perturb.resegment``, which re-runs them on corrupted matches)::
     -> anchor_base -> add_guided_matches -> robust_refit     artrecon.link_motions
     -> dense points the table is seen through dropped        artrecon.freespace
     -> dense points assigned to links                        artrecon.assign
+    -> moving links' motions refitted with their surfaces     artrecon.surface_fit
     -> links without dense surface dropped, links_from_labels
     find_joints:
     build_kinematic_tree (rerooted at the base)              artrecon.joints
@@ -25,7 +26,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -48,6 +49,7 @@ from artrecon.link_motions import (
 from artrecon.model import Link
 from artrecon.segment import Segmentation, min_link_size, segment_links
 from artrecon.settings import ReconstructConfig
+from artrecon.surface_fit import surface_refit
 from artrecon.uncertainty import MatchCovariances
 
 log = logging.getLogger(__name__)
@@ -78,6 +80,8 @@ class Links:
     guided_ids: np.ndarray
     """(m, 2) SfM point ids (A, B) of the matches the guided matching appended."""
     timings: dict[str, float]
+    surface: list = field(default_factory=list)
+    """Per moving link, what its surface refit did (:func:`artrecon.surface_fit.surface_refit`)."""
 
 
 @dataclass
@@ -292,9 +296,15 @@ def _find_links(points_a, points_b, background_a, background_b, dense_a, dense_b
             f"{seg.n_links} holds any of the dense surface (the others' matches are "
             "chance pairings): the object moved as one rigid body, or its moving part was not "
             "seen well enough; photograph it with more views or more texture")
-    links = links_from_labels(dense_a, dense_b, lab_a, lab_b, seg.transforms)
     timings["assign"] = time.perf_counter() - t
-    return Links(seg, root, anchors, lab_a, lab_b, links, points_a, points_b, guided, timings)
+    t = time.perf_counter()
+    # the moving links' motions pinned across their surfaces by their dense points
+    seg, surface = surface_refit(seg, root, points_a, points_b, dense_a, dense_b, lab_a, lab_b,
+                                 config.surface)
+    timings["surface"] = time.perf_counter() - t
+    links = links_from_labels(dense_a, dense_b, lab_a, lab_b, seg.transforms)
+    return Links(seg, root, anchors, lab_a, lab_b, links, points_a, points_b, guided, timings,
+                 surface)
 
 
 def drop_unsupported_links(seg: Segmentation, root: int | None, anchors: dict | None,

@@ -150,12 +150,15 @@ def _batch_rigid(pa: np.ndarray, pb: np.ndarray, scale: float,
 
 
 def _batch_gls_step(pa: np.ndarray, pb: np.ndarray, transform: Similarity, mats: np.ndarray,
-                    draw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                    draw: np.ndarray, prior: tuple | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """Rotations (B, 3, 3) and translations (B, 3) of the generalised least-squares fit
     (:func:`artrecon.uncertainty.robust_gls_transforms`, its weight matrices ``mats`` (n, 3, 3)
     held, the scale too) of B resamples ``draw`` (B, m) of the n pairs: one Gauss-Newton step
     from ``transform``, the fit of all of them (a linearised bootstrap; the fit is linear in the
-    motion to well under a hundredth of a degree at the rotations resampling gives)."""
+    motion to well under a hundredth of a degree at the rotations resampling gives).
+    ``prior``: (information (6, 6), gradient (6,)), a fixed term added to every resample's
+    normal equations (the link's dense surface, :func:`_surface_priors`)."""
     rot, t, s = transform.rotation, transform.translation, transform.scale
     x = s * pa @ rot.T
     r = x + t - pb
@@ -167,7 +170,10 @@ def _batch_gls_step(pa: np.ndarray, pb: np.ndarray, transform: Similarity, mats:
     g = np.einsum("nil,nl->ni", jw, r)
     counts = np.zeros((len(draw), len(pa)))
     np.add.at(counts, (np.repeat(np.arange(len(draw)), draw.shape[1]), draw.ravel()), 1.0)
-    step = -np.linalg.solve((counts @ h).reshape(-1, 6, 6), (counts @ g)[:, :, None])[:, :, 0]
+    hs, gs = (counts @ h).reshape(-1, 6, 6), counts @ g
+    if prior is not None:
+        hs, gs = hs + prior[0], gs + prior[1]
+    step = -np.linalg.solve(hs, gs[:, :, None])[:, :, 0]
     rots = Rotation.from_rotvec(step[:, :3]).as_matrix() @ rot
     return rots, t + step[:, 3:]
 
@@ -260,7 +266,8 @@ def joint_confidence(joint, points_a, points_b, segmentation, joint_config=None,
     rec["bootstrap"] = _bootstrap(joint, pa_all, pb_all, idx, T, segmentation.scale,
                                   links[C]["extent"], joint_config, config.bootstrap_samples,
                                   seed, joint_from_motion, relative_motion, fit_idx=boot_idx,
-                                  weights=w_all, matrices=m_all)
+                                  weights=w_all, matrices=m_all,
+                                  surface=_surface_priors(segmentation))
 
     reasons = []
     for k, role in ((P, "parent"), (C, "child")):
@@ -293,13 +300,24 @@ def joint_confidence(joint, points_a, points_b, segmentation, joint_config=None,
     return rec
 
 
+def _surface_priors(segmentation) -> dict:
+    """``{link: (information (6, 6), gradient (6,))}``: what each link's dense surface says of
+    its motion (:func:`artrecon.surface_fit.surface_refit`), for the links it refined."""
+    info, grad = segmentation.surface_information, segmentation.surface_gradient
+    if info is None or grad is None:
+        return {}
+    return {k: (info[k], grad[k]) for k in range(len(info)) if np.any(info[k])}
+
+
 def _bootstrap(joint, pa_all, pb_all, idx, T, scale, child_extent, joint_config, n_boot, seed,
                joint_from_motion, relative_motion, fit_idx=None, weights=None,
-               matrices=None) -> dict:
+               matrices=None, surface=None) -> dict:
     """Resample each link's fit (over ``fit_idx``, default ``idx``: its members, and any matches
     anchoring it; each match with its ``weights`` entry, default 1, or its weight matrix
     ``matrices`` (:func:`_batch_gls_step`) when given) and re-estimate the joint (with the
-    links' own points, ``idx``)."""
+    links' own points, ``idx``). ``surface``: ``{link: (information, gradient)}``, the dense
+    surface's term of a link's fit (:func:`_surface_priors`), held in each resample: the matches
+    are resampled, the surface the link was refitted with stays."""
     rng = np.random.default_rng(seed)
     P, C = joint.parent, joint.child
     fit_idx = idx if fit_idx is None else fit_idx
@@ -314,7 +332,9 @@ def _bootstrap(joint, pa_all, pb_all, idx, T, scale, child_extent, joint_config,
         draw = rng.integers(0, len(members), size=(n_boot, len(members)))
         chunk = max(1, BOOTSTRAP_CHUNK // len(members))  # bounds memory: chunk x n x 3 floats
         if matrices is not None:
-            parts = [_batch_gls_step(pa_all[members], pb_all[members], T[k], matrices[members], d)
+            prior = (surface or {}).get(k)
+            parts = [_batch_gls_step(pa_all[members], pb_all[members], T[k], matrices[members], d,
+                                     prior)
                      for d in np.array_split(draw, range(chunk, n_boot, chunk))]
         else:
             parts = [_batch_rigid(pa_all[members[d]], pb_all[members[d]], scale,

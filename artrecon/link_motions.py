@@ -92,9 +92,10 @@ def merge_equivalent_links(points_a: np.ndarray, points_b: np.ndarray,
                 if not still:
                     # motion (RMS, in B units like the residuals) against the links' noise
                     mi = labels == i
-                    disp = _rms(transforms[i], points_a[mj], transforms[j].apply(points_a[mj]))
-                    noise = max(_rms(transforms[i], points_a[mi], points_b[mi]),
-                                _rms(transforms[j], points_a[mj], points_b[mj]))
+                    disp = motion_rms(transforms[i], points_a[mj],
+                                      transforms[j].apply(points_a[mj]))
+                    noise = max(motion_rms(transforms[i], points_a[mi], points_b[mi]),
+                                motion_rms(transforms[j], points_a[mj], points_b[mj]))
                     still = bool(disp < MERGE_MIN_MOTION_SNR * noise)
                 if still or np.median(res) < max(thresholds[i], thresholds[j]):
                     labels[mj] = i
@@ -125,7 +126,8 @@ def merge_equivalent_links(points_a: np.ndarray, points_b: np.ndarray,
                         hypotheses=list(seg.hypotheses), rms=rms)
 
 
-def _rms(T, pa: np.ndarray, pb: np.ndarray) -> float:
+def motion_rms(T, pa: np.ndarray, pb: np.ndarray) -> float:
+    """RMS distance of ``T.apply(pa)`` to ``pb`` (0 for no pairs)."""
     if len(pa) == 0:
         return 0.0
     return float(np.sqrt(np.mean(np.sum((T.apply(pa) - pb) ** 2, axis=1))))
@@ -199,7 +201,7 @@ def anchor_to_background(points_a: np.ndarray, points_b: np.ndarray, seg: Segmen
     labels = np.asarray(seg.labels)
     groups = [(points_a[labels == k], points_b[labels == k]) for k in range(seg.n_links)]
     own_a, own_b = groups[root]
-    rms_own = _rms(seg.transforms[root], own_a, own_b)
+    rms_own = motion_rms(seg.transforms[root], own_a, own_b)
     thr = seg.thresholds[root] if seg.thresholds else 3.0 * rms_own
 
     def fit(used):
@@ -229,7 +231,7 @@ def anchor_to_background(points_a: np.ndarray, points_b: np.ndarray, seg: Segmen
                  MIN_BACKGROUND_MATCHES)
         return seg, None
     transforms = fit(used)
-    rms_anchored = _rms(transforms[root], own_a, own_b)
+    rms_anchored = motion_rms(transforms[root], own_a, own_b)
     if rms_anchored > ANCHOR_MAX_RMS_GROWTH * rms_own:
         log.warning("base link %d: fitted with the background its matches' residual grows from "
                     "%.3g to %.3g RMS; the base moved against the room, its motion is fitted to "
@@ -237,7 +239,7 @@ def anchor_to_background(points_a: np.ndarray, points_b: np.ndarray, seg: Segmen
         return seg, None
     log.info("base link %d anchored to %d background matches (its matches' RMS %.3g -> %.3g)",
              root, used.sum(), rms_own, rms_anchored)
-    rms = [_rms(T, a, b) for T, (a, b) in zip(transforms, groups, strict=True)]
+    rms = [motion_rms(T, a, b) for T, (a, b) in zip(transforms, groups, strict=True)]
     return replace(seg, transforms=transforms, scale=float(transforms[0].scale), rms=rms), \
         (background_a[used], background_b[used])
 
@@ -301,7 +303,7 @@ def add_guided_matches(points_a: np.ndarray, points_b: np.ndarray, seg: Segmenta
                 ga, gb = np.vstack([ga, anchors[k][0]]), np.vstack([gb, anchors[k][1]])
             groups.append((ga, gb))
         transforms = shared_scale_transforms(groups)
-        rms = [_rms(T, pa[labels == k], pb[labels == k]) for k, T in enumerate(transforms)]
+        rms = [motion_rms(T, pa[labels == k], pb[labels == k]) for k, T in enumerate(transforms)]
         seg = replace(seg, labels=labels, transforms=transforms, scale=float(transforms[0].scale),
                       rms=rms)
         points_a, points_b = pa, pb
@@ -389,7 +391,7 @@ def robust_refit(points_a: np.ndarray, points_b: np.ndarray, seg: Segmentation,
                  " (triangulation covariances)" if mats is not None else "", k,
                  np.degrees(rotation_angle(T0.rotation.T @ T1.rotation)),
                  int(np.sum(weights[k] < 0.1 * np.median(weights[k]))), len(weights[k]))
-    rms = [_rms(T, points_a[labels == k], points_b[labels == k])
+    rms = [motion_rms(T, points_a[labels == k], points_b[labels == k])
            for k, T in enumerate(transforms)]
     return replace(seg, transforms=transforms, scale=float(transforms[0].scale), rms=rms,
                    weights=w, precisions=precisions), anchors

@@ -4,7 +4,8 @@ Input: ``OUT/matches/`` (:mod:`artrecon.matches_stage`) and the two configuratio
 (:mod:`artrecon.configuration`: dense points, cameras, occluders). The steps are
 :func:`artrecon.articulation.find_links`'s: the matches segmented into links (sequential
 RANSAC), the base anchored to the background, the guided matches, the robust refit, the dense
-points the table is seen through dropped and every dense point of A and B labelled with a link.
+points the table is seen through dropped, every dense point of A and B labelled with a link and
+the moving links' motions refitted with their dense surfaces (:mod:`artrecon.surface_fit`).
 Output: a folder (``OUT/links``), a contract like the matches'::
 
     matches.npz       the matches the links were fitted to (the guided ones appended): points_a,
@@ -13,15 +14,17 @@ Output: a folder (``OUT/links``), a contract like the matches'::
                       model stage copies it to OUT/matches.npz
     links.npz         the rest of the segmentation (each link's A -> B transform:
                       rotations, translations, scales; the shared scale, thresholds, scene
-                      sizes, hypotheses, rms, the refit's weights and precisions), the dense
+                      sizes, hypotheses, rms, the refit's weights and precisions; the
+                      surface refit's surface_information and surface_gradient), the dense
                       labels of A and B (labels_a, labels_b), the guided matches' SfM ids
                       (guided_ids) and the base's anchors (anchor<k>_<i>: link k's background
                       matches in A and B, their weights[, precisions])
     link_<k>.ply      each link's dense oriented points (model frame: A's)
     links.json        the record, written last: the matches' inputs_digest, the settings the
                       stage reads (:func:`links_settings`), seed, artrecon version, the base
-                      (root, None: the background does not show it), each file's SHA-256,
-                      counts and timings
+                      (root, None: the background does not show it), the surface refit's
+                      report per moving link (surface), each file's SHA-256, counts and
+                      timings
 
 :func:`run_links` writes it and reads it back, :func:`check_links` refuses one that is not this
 run's, :func:`load_links` reads it (the links' points rebuilt from the configurations' dense
@@ -61,7 +64,7 @@ FORMAT = "artrecon-links/1"
 #: The record, written last.
 RECORD = "links.json"
 #: The settings the stage reads (``--from joints`` needs them unchanged).
-SETTINGS = ("segmentation", "guided", "assign", "freespace", "region")
+SETTINGS = ("segmentation", "guided", "assign", "freespace", "region", "surface")
 _REQUIRED = {"matches.npz", "links.npz"}
 
 
@@ -116,7 +119,8 @@ def run_links(confs: dict, found, folder: Path, config, seed: int) -> Links:
         "settings": settings, "seed": seed, "artrecon_version": __version__,
         "root": links.root,
         "anchor_fields": {str(k): len(v) for k, v in (links.anchors or {}).items()},
-        "links": seg.n_links, "guided_matches": len(guided), "timings": links.timings,
+        "links": seg.n_links, "guided_matches": len(guided), "surface": links.surface,
+        "timings": links.timings,
     }, RECORD)
     return _read_links(Path(folder), record, confs)
 
@@ -137,6 +141,9 @@ def _links_arrays(links: Links) -> dict:
         arrays["weights"] = seg.weights
     if seg.precisions is not None:
         arrays["precisions"] = seg.precisions
+    if seg.surface_information is not None:
+        arrays["surface_information"] = seg.surface_information
+        arrays["surface_gradient"] = seg.surface_gradient
     for k, anchor in (links.anchors or {}).items():
         arrays.update({f"anchor{k}_{i}": a for i, a in enumerate(anchor)})
     return arrays
@@ -179,10 +186,13 @@ def _read_links(folder: Path, record: dict, confs: dict) -> Links:
                        scene_size_a=float(a["scene_sizes"][0]),
                        scene_size_b=float(a["scene_sizes"][1]),
                        hypotheses=a["hypotheses"].tolist(), rms=a["rms"].tolist(),
-                       weights=a.get("weights"), precisions=a.get("precisions"))
+                       weights=a.get("weights"), precisions=a.get("precisions"),
+                       surface_information=a.get("surface_information"),
+                       surface_gradient=a.get("surface_gradient"))
     anchors = {int(k): tuple(a[f"anchor{k}_{i}"] for i in range(n))
                for k, n in record["anchor_fields"].items()} or None
     dense_a, dense_b = confs["a"].dense, confs["b"].dense
     links = links_from_labels(dense_a, dense_b, a["labels_a"], a["labels_b"], transforms)
     return Links(seg, record["root"], anchors, a["labels_a"], a["labels_b"], links,
-                 m["points_a"], m["points_b"], a["guided_ids"], dict(record["timings"]))
+                 m["points_a"], m["points_b"], a["guided_ids"], dict(record["timings"]),
+                 record.get("surface", []))

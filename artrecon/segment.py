@@ -120,6 +120,10 @@ class Segmentation:
         Weight matrix of each match in its link's fit when the fit knew the matches' point
         covariances (:func:`artrecon.uncertainty.robust_gls_transforms`: its weight times the
         inverse covariance of its residual, B units); None: the fit was isotropic (``weights``).
+    surface_information, surface_gradient : (n_links, 6, 6), (n_links, 6) float or None
+        What each link's dense surface says of its motion (:func:`artrecon.surface_fit.
+        surface_refit`: the surface term's Gauss-Newton matrix and gradient at the motion); None
+        or zero: the motion is the matches' alone.
     """
 
     labels: np.ndarray
@@ -132,6 +136,8 @@ class Segmentation:
     rms: list[float] = field(default_factory=list)
     weights: np.ndarray | None = None
     precisions: np.ndarray | None = None
+    surface_information: np.ndarray | None = None
+    surface_gradient: np.ndarray | None = None
 
     @property
     def n_links(self) -> int:

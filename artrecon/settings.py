@@ -31,6 +31,7 @@ from artrecon.joints import JointConfig
 from artrecon.refine import RefineConfig
 from artrecon.segment import SegmentationConfig
 from artrecon.sfm import SfMConfig
+from artrecon.surface_fit import SurfaceConfig
 
 __all__ = ["Range", "Choice", "ListOf", "RANGES", "ORDERED", "parse_settings", "check_setting",
            "apply_settings", "ReconstructConfig", "with_settings", "jsonable"]
@@ -191,6 +192,14 @@ RANGES: dict[str, Range | Choice] = {
     "joints.misfit_weight": Range(0, 1e6, "a weight"),
     "joints.axis_gap_weight": Range(0, 1e6, "a weight"),
     "joints.contact_margin": Range(0, 100, "a fraction of the scene size"),
+    # --- surface (artrecon.surface_fit.SurfaceConfig)
+    "surface.enabled": Range(0, 1, "0 or 1"),
+    "surface.weight": Range(0, 100, "share of an independent point's information"),
+    "surface.reach": Range(0, 1000, "dense spacings", **_OPEN),
+    "surface.max_normal_angle_deg": Range(0, 180, "degrees", **_OPEN),
+    "surface.loss_scale": Range(0, 1000, "robust standard deviations", **_OPEN),
+    "surface.iterations": Range(1, 1000, "rounds"),
+    "surface.min_pairs": Range(3, 10**9, "pairs"),
     # --- refine (artrecon.refine.RefineConfig)
     "refine.enabled": Range(0, 1, "0 or 1"),
     "refine.loss_scale": Range(0, 1000, "standard deviations", **_OPEN),
@@ -439,6 +448,7 @@ class ReconstructConfig:
     confidence: ConfidenceConfig = field(default_factory=ConfidenceConfig)
     guided: GuidedConfig = field(default_factory=GuidedConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
+    surface: SurfaceConfig = field(default_factory=SurfaceConfig)
 
 
 def with_settings(config: ReconstructConfig, settings: dict[str, float | int | bool | str]
