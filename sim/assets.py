@@ -31,6 +31,7 @@ Geometry is in metres. Texel size: the capture camera (fx = 554 px) at about 0.4
 from __future__ import annotations
 
 import logging
+import time
 import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -473,15 +474,13 @@ def unwrap(vertices, faces, texel: float = OBJECT_TEXEL, max_size: int = MAX_ATL
         pack.texels_per_unit = float(1.0 / texel)
         pack.resolution = 0
         pack.bilinear = True
-        atlas = xatlas.Atlas()
-        atlas.add_mesh(pos32, idx32)
-        atlas.generate(chart, pack)
-        if atlas.atlas_count == 1 and max(atlas.width, atlas.height) <= max_size:
+        count, width, height, charted = _generate_atlas(pos32, idx32, chart, pack)
+        if count == 1 and max(width, height) <= max_size:
             break
-        texel *= max(TEXEL_GROWTH, max(atlas.width, atlas.height) / max_size)
+        texel *= max(TEXEL_GROWTH, max(width, height) / max_size)
     else:
         raise ValueError(f"the mesh does not fit a {max_size}x{max_size} atlas")
-    vmap, out_faces, uv = atlas[0]
+    vmap, out_faces, uv = charted
     vmap = np.asarray(vmap, dtype=np.int64)
     out_faces = np.asarray(out_faces, dtype=np.int64)
     # xatlas keeps the triangle order and winding; normals per output vertex from its faces
@@ -492,8 +491,32 @@ def unwrap(vertices, faces, texel: float = OBJECT_TEXEL, max_size: int = MAX_ATL
     normals = np.where(length > 0, normals / np.maximum(length, 1e-300), [0.0, 0.0, 1.0])
     uv = np.asarray(uv, dtype=float)
     uv = np.c_[uv[:, 0], 1.0 - uv[:, 1]]  # xatlas: rows from the top; OBJ: v up
-    return UVMesh(v[vmap], normals, uv, out_faces, int(atlas.width), int(atlas.height),
-                  float(texel))
+    return UVMesh(v[vmap], normals, uv, out_faces, int(width), int(height), float(texel))
+
+
+#: Seconds an xatlas atlas is kept after its charts are read, before it is destroyed (below).
+XATLAS_SETTLE_S = 0.05
+
+
+def _generate_atlas(positions: np.ndarray, indices: np.ndarray, chart, pack):
+    """One xatlas run: ``(atlas_count, width, height, (vmap, faces, uv) of the first mesh)``,
+    copied out of the atlas.
+
+    xatlas's task scheduler (0.0.11) wakes its worker threads without holding their mutex, so a
+    worker still on its way back to sleep when the atlas is destroyed misses the shutdown call
+    and the destructor's join waits for ever (seen once in CI: a test stopped in
+    ``xatlas::Destroy`` for over 20 minutes, both threads idle). Every run of ``generate`` wakes
+    the workers; waiting a few tens of milliseconds after it, while they go back to sleep, before
+    the destructor runs closes that window in practice (it cannot be closed from outside xatlas).
+    """
+    atlas = xatlas.Atlas()
+    atlas.add_mesh(positions, indices)
+    atlas.generate(chart, pack)
+    vmap, faces, uv = (np.array(a) for a in atlas[0])
+    out = (int(atlas.atlas_count), int(atlas.width), int(atlas.height), (vmap, faces, uv))
+    time.sleep(XATLAS_SETTLE_S)
+    del atlas
+    return out
 
 
 def write_uv_obj(path: Path, mesh: UVMesh, name: str, generator: str = "sim.assets") -> None:
