@@ -64,10 +64,13 @@ class SurfaceConfig:
     """Refine each moving link's motion against its dense surface (off: the matches' motion)."""
     weight: float = 0.3
     """Information of one dense point's residual relative to an independent one: stereo points
-    share their errors with the neighbours of their correlation window. Measured on the cached
-    seed-2 captures (scissors, pliers_panda): 0 keeps the matches' motion (scissors' axis 0.90
-    deg), 0.09 (independent per 5 x 5 px block at 1.5 px spacing) 0.42 deg, 0.3 0.08 deg, 1 0.14
-    deg; pliers_panda 0.035, 0.034, 0.030, 0.019 deg."""
+    share their errors with the neighbours of their correlation window (one independent point
+    per 5 x 5 px block at 1.5 px spacing would be 0.09). Measured on the 30 runs of
+    ``bench_gates --seeds 0-2`` (cached captures), the moving blade's rotation error on scissors
+    seeds 0, 1, 2: 0.20, 0.22, 0.47 deg from the matches alone; 0.14, 0.12, 0.20 at 0.1; 0.08,
+    0.10, 0.05 at 0.3; 0.03, 0.11, 0.08 at 1. At 0.3 every other moving link of the ten scenes
+    stays within about 0.02 deg of its matches' error; at 1 pliers_panda seed 1 doubles (0.03 ->
+    0.07)."""
     reach: float = 4.0
     """Pair a moved A point with a B point at most this many dense spacings away (the median
     distance between B's neighbouring points)."""
@@ -150,7 +153,8 @@ def surface_refit(seg: Segmentation, root: int | None, points_a: np.ndarray,
 def refit_link(T: Similarity, match_a: np.ndarray, match_b: np.ndarray,
                match_weights: np.ndarray, surf_a: np.ndarray, normals_a: np.ndarray,
                surf_b: np.ndarray, normals_b: np.ndarray, spacing: float,
-               config: SurfaceConfig = SurfaceConfig()) -> tuple[Similarity, dict]:
+               config: SurfaceConfig = SurfaceConfig()
+               ) -> tuple[Similarity, dict, tuple | None]:
     """One link's motion ``T`` refined against its matches and its dense surface.
 
     Parameters
@@ -175,6 +179,10 @@ def refit_link(T: Similarity, match_a: np.ndarray, match_b: np.ndarray,
     report : dict
         ``pairs``, ``surface_noise``, ``rotation_change_deg``, ``translation_change``,
         ``iterations``, ``applied`` (and ``reason`` when not).
+    prior : (information (6, 6), gradient (6,)) or None
+        The surface term's Gauss-Newton matrix and gradient at the refined motion (rotation
+        perturbed on the left about the origin, translation added: the parameters of
+        :func:`artrecon.confidence._batch_gls_step`); None when the motion was kept.
     """
     report = {"pairs": 0, "surface_noise": float("nan"), "rotation_change_deg": 0.0,
               "translation_change": 0.0, "iterations": 0, "applied": False}
