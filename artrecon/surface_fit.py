@@ -40,7 +40,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from artrecon.geometry import exp_so3, skew
+from artrecon.geometry import exp_so3, rotation_angle, skew
 from artrecon.link_motions import motion_rms
 from artrecon.procrustes import Similarity
 from artrecon.segment import Segmentation
@@ -125,10 +125,11 @@ def surface_refit(seg: Segmentation, root: int | None, points_a: np.ndarray,
     information = np.zeros((seg.n_links, 6, 6))
     gradient = np.zeros((seg.n_links, 6))
     reports = []
+    labels = np.asarray(seg.labels)
     for k in range(seg.n_links):
         if k == root:
             continue
-        members = np.asarray(seg.labels) == k
+        members = labels == k
         weights = _match_weights(seg, k, members)
         T, report, prior = refit_link(
             transforms[k], points_a[members], points_b[members], weights,
@@ -143,7 +144,6 @@ def surface_refit(seg: Segmentation, root: int | None, points_a: np.ndarray,
         transforms[k] = T
         if prior is not None:
             information[k], gradient[k] = prior
-    labels = np.asarray(seg.labels)
     rms = [motion_rms(T, points_a[labels == k], points_b[labels == k]) for k, T in
            enumerate(transforms)]
     return replace(seg, transforms=transforms, rms=rms, surface_information=information,
@@ -216,10 +216,9 @@ def refit_link(T: Similarity, match_a: np.ndarray, match_b: np.ndarray,
         report["iterations"] = it + 1
         step_norm = max(float(np.linalg.norm(step[:3])), float(np.linalg.norm(step[3:])) / spacing)
     refined = Similarity(rot, trans, scale)
-    change = rot @ np.asarray(T.rotation, float).T
     report.update(pairs=len(rows_s), surface_noise=noise, applied=True,
-                  rotation_change_deg=float(np.degrees(np.arccos(
-                      np.clip((np.trace(change) - 1) / 2, -1, 1)))),
+                  rotation_change_deg=float(np.degrees(rotation_angle(
+                      rot @ np.asarray(T.rotation, float).T))),
                   translation_change=float(np.linalg.norm(
                       refined.apply(match_a).mean(0) - T.apply(match_a).mean(0)))
                   if len(match_a) else 0.0)
