@@ -69,6 +69,7 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from artrecon.errors import ReconstructionError
+from artrecon.geometry import point_spacing
 from artrecon.potts import potts_expansion
 from artrecon.workers import side_by_side
 
@@ -347,7 +348,7 @@ def _static_edges(X, S, k, radius) -> np.ndarray:
     if S is None or len(S) == 0 or n < 2:
         return np.zeros(n)
     tree = cKDTree(X)
-    reach = radius * float(np.median(tree.query(X, k=2)[0][:, 1]))
+    reach = radius * point_spacing(X, tree)
     S = np.asarray(S, float)
     S = S[tree.query(S, distance_upper_bound=reach)[0] < reach]  # only these can be neighbours
     if len(S) == 0:
@@ -394,7 +395,7 @@ class _Evidence:
         if K == 1:
             return
         tree = cKDTree(dst)
-        spacing = float(np.median(tree.query(dst, k=2)[0][:, 1]))
+        spacing = point_spacing(dst, tree)
         floor = config.spacing_factor * spacing
         self.moved = [T.apply(src) for T in transforms]
         self.threshold = [max(config.residual_factor * float(r), floor) for r in residuals]
@@ -440,7 +441,7 @@ class _Evidence:
         self.photo_share = float(np.mean(has.all(0)))
         photo = np.where(has, (1.0 - np.nan_to_num(ncc)) / 2.0, config.photo_unknown)
         U = U + config.cost_photo * np.where(has.any(0), photo, 0.0)
-        src_spacing = float(np.median(cKDTree(src).query(src, k=2)[0][:, 1]))
+        src_spacing = point_spacing(src)
         self.graph = _graph(src, config.neighbours, config.neighbour_radius)
         reach = config.match_reach * src_spacing
         # no match within reach along the surface: no prior (nearest -1, its weight 0)

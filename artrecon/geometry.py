@@ -8,6 +8,7 @@ says otherwise.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 __all__ = [
     "skew",
@@ -20,6 +21,7 @@ __all__ = [
     "pose",
     "invert_pose",
     "transform_points",
+    "point_spacing",
 ]
 
 
@@ -119,3 +121,13 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     (given in frame b)."""
     T = np.asarray(T, dtype=float)
     return np.asarray(points, dtype=float) @ T[:3, :3].T + T[:3, 3]
+
+
+def point_spacing(points: np.ndarray, tree: cKDTree | None = None) -> float:
+    """Median distance of the points (n, 3) to their nearest neighbour: the sampling step of a
+    dense point cloud, which the thresholds of its users are multiples of (0.0 for fewer than two
+    points). ``tree``: a KD-tree of ``points`` already built."""
+    if len(points) < 2:
+        return 0.0
+    d, _ = (cKDTree(points) if tree is None else tree).query(points, k=2)
+    return float(np.median(d[:, 1]))

@@ -40,7 +40,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from artrecon.geometry import exp_so3, rotation_angle, skew
+from artrecon.geometry import exp_so3, point_spacing, rotation_angle, skew
 from artrecon.link_motions import motion_rms
 from artrecon.procrustes import Similarity
 from artrecon.segment import Segmentation
@@ -262,7 +262,4 @@ def _sqrt_weights(weights: np.ndarray) -> np.ndarray:
 
 def _spacing(points: np.ndarray) -> float:
     """Median distance of the points to their nearest neighbour (1.0 when too few)."""
-    if len(points) < 2:
-        return 1.0
-    d, _ = cKDTree(points).query(points, k=2)
-    return float(np.median(d[:, 1])) or 1.0
+    return point_spacing(points) or 1.0

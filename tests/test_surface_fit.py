@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from artrecon.confidence import _batch_gls_step
-from artrecon.geometry import rotation_about
+from artrecon.geometry import point_spacing, rotation_about
 from artrecon.procrustes import Similarity, rigid_transform, rotation_angle
 from artrecon.segment import Segmentation
 from artrecon.surface_fit import SurfaceConfig, refit_link, surface_refit
@@ -210,3 +210,13 @@ def test_surface_settings_are_reconstruct_settings(setting):
     value = {"weight": 0.5, "reach": 3.0, "iterations": 7}[setting]
     config = with_settings(ReconstructConfig(), {f"surface.{setting}": value})
     assert getattr(config.surface, setting) == value
+
+
+def test_point_spacing_is_the_median_nearest_neighbour_distance():
+    """The dense spacing every threshold of the refit (and the labelling, and the meshing) is a
+    multiple of: a 2 mm grid with a few stray points far off gives 2 mm; too few points, 0."""
+    g = np.arange(10) * 2 * MM
+    grid = np.stack(np.meshgrid(g, g, [0.0]), axis=-1).reshape(-1, 3)
+    stray = np.array([[1.0, 1.0, 1.0], [2.0, -1.0, 0.5]])
+    assert point_spacing(np.vstack([grid, stray])) == pytest.approx(2 * MM)
+    assert point_spacing(grid[:1]) == 0.0

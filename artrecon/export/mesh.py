@@ -33,6 +33,7 @@ from scipy.cluster.vq import kmeans2
 from scipy.spatial import ConvexHull, cKDTree
 
 from artrecon.errors import ArtreconError, InputError
+from artrecon.geometry import point_spacing
 
 log = logging.getLogger(__name__)
 
@@ -95,10 +96,7 @@ def auto_voxel_size(points: np.ndarray) -> float:
     """
     points = check_points("points", points)
     extent = float(np.max(np.ptp(points, axis=0))) if len(points) else 0.0
-    spacing = 0.0
-    if len(points) >= 2:
-        d, _ = cKDTree(points).query(points, k=2)
-        spacing = float(np.median(d[:, 1]))
+    spacing = point_spacing(points)
     h = max(VOXEL_SPACING_FACTOR * spacing, extent / MAX_VOXELS_PER_AXIS)
     if not h > 0:
         raise InputError(
