@@ -27,6 +27,8 @@ def _scene(t, name="s", numerics="", rigid=False, static=False):
     if static:
         text = text.replace('<numeric name="config_b:pliers_hinge" data="0.5236"/>',
                             '<numeric name="config_b:pliers_hinge" data="0"/>')
+    for setting in re.findall(r'name="(reconstruct:[^"]+)"', numerics):  # replaced, not doubled
+        text = re.sub(rf'<numeric name="{re.escape(setting)}"[^>]*/>', "", text)
     text = text.replace("<custom>", "<custom>\n    " + numerics)
     path = t / f"{name}.xml"
     path.write_text(text)
