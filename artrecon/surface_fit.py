@@ -70,7 +70,11 @@ class SurfaceConfig:
     seeds 0, 1, 2: 0.20, 0.22, 0.47 deg from the matches alone; 0.14, 0.12, 0.20 at 0.1; 0.08,
     0.10, 0.05 at 0.3; 0.03, 0.11, 0.08 at 1. At 0.3 every other moving link of the ten scenes
     stays within about 0.02 deg of its matches' error; at 1 pliers_panda seed 1 doubles (0.03 ->
-    0.07)."""
+    0.07). It is per point, so the term's pull grows with the dense resolution while the
+    surface's own biases do not average out: the pliers scenes at full resolution (4-5 times the
+    points, c721a29) have axes 0.029-0.281 deg over seeds 0-2 where the matches alone give
+    0.014-0.184; a rotation floor on the term's information did not settle it (scissors lost
+    its gain)."""
     reach: float = 4.0
     """Pair a moved A point with a B point at most this many dense spacings away (the median
     distance between B's neighbouring points)."""
