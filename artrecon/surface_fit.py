@@ -124,7 +124,7 @@ def surface_refit(seg: Segmentation, root: int | None, points_a: np.ndarray,
     """
     if not config.enabled:
         return seg, []
-    spacing = _spacing(dense_b.points)
+    spacing = point_spacing(dense_b.points) or 1.0  # 1.0: too few points to tell
     transforms = list(seg.transforms)
     information = np.zeros((seg.n_links, 6, 6))
     gradient = np.zeros((seg.n_links, 6))
@@ -262,8 +262,3 @@ def _sqrt_weights(weights: np.ndarray) -> np.ndarray:
     """Square roots ``W`` (W^T W = weight matrix) of symmetric positive semi-definite 3 x 3s."""
     e, v = np.linalg.eigh(weights)
     return np.sqrt(np.maximum(e, 0.0))[:, :, None] * np.swapaxes(v, 1, 2)
-
-
-def _spacing(points: np.ndarray) -> float:
-    """Median distance of the points to their nearest neighbour (1.0 when too few)."""
-    return point_spacing(points) or 1.0
