@@ -34,7 +34,7 @@ import pycolmap
 from threadpoolctl import threadpool_limits
 
 from artrecon._version import __version__
-from artrecon.dense import DenseConfig, DensePoints, RegionConfig, dense_points, object_region
+from artrecon.dense import DenseConfig, DensePoints, RegionConfig, fused_points, object_region
 from artrecon.errors import InputError, ReconstructionError
 from artrecon.files import read_json, read_ply, write_json_atomic, write_ply
 from artrecon.io import ImageSet, Intrinsics, load_cameras_json
@@ -296,10 +296,12 @@ def _reconstruct_configuration(image_set, out_dir: Path, intrinsics, poses, sfm_
                 + _layout_cause(intrinsics, reference_intrinsics))
     timings["sfm"] = time.perf_counter() - t
     t, cpu = time.perf_counter(), time.process_time()
-    dense = dense_points(sfm, dense_config)
+    cloud = fused_points(sfm, dense_config)
     centres, axes = _cameras(sfm)
-    occluders = dense.points  # background too: the table and walls hide things
-    dense = dense.subset(object_region(dense.points, centres, axes, region_config, seed))
+    occluders = cloud.points  # background too: the table and walls hide things
+    # normals for the object's points only (a few percent of a full-resolution cloud; the
+    # occluders need none), each from its neighbours in the whole cloud as before
+    dense = cloud.oriented(object_region(cloud.points, centres, axes, region_config, seed))
     # what the folder holds (float32 in PLY): a run that reads the folder back finds the same
     occluders = occluders.astype(np.float32).astype(float)
     dense = DensePoints(dense.points.astype(np.float32).astype(float),

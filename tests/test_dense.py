@@ -46,6 +46,53 @@ def test_normals_of_a_plane_face_the_cameras():
     assert np.all(n_below[:, 2] < -0.99)
 
 
+def test_normals_of_a_selection_are_those_of_the_whole_cloud():
+    """FusedPoints.oriented(mask): the selected points' normals from their neighbours among all
+    the points, bit for bit those of the whole cloud (the occluders need none)."""
+    rng = np.random.default_rng(5)
+    table = np.column_stack([rng.uniform(-1, 1, (3000, 2)), 1e-3 * rng.standard_normal(3000)])
+    box = np.column_stack([rng.uniform(-0.2, 0.2, (600, 2)), rng.uniform(0, 0.3, 600)])
+    pts = np.concatenate([table, box])
+    cams, _ = ring(n=8, radius=2.0, height=1.0)
+    vis = rng.random((len(pts), len(cams))) < 0.6
+    cloud = dense.FusedPoints(pts, np.zeros((len(pts), 3), np.uint8), vis,
+                              [f"{k}.png" for k in range(len(cams))], cams, 16)
+    whole = cloud.oriented()
+    mask = np.r_[np.zeros(len(table), bool), np.ones(len(box), bool)]
+    mask[:50] = True  # and some of the table, next to nothing of the box
+    part = cloud.oriented(mask)
+    np.testing.assert_array_equal(part.points, pts[mask])
+    np.testing.assert_array_equal(part.normals, whole.normals[mask])
+    np.testing.assert_array_equal(part.visibility, vis[mask])
+    # neighbours from the selection alone would differ at the box's foot, beside the table
+    alone = dense.estimate_normals(pts[mask], vis[mask], cams, 16)
+    assert not np.array_equal(alone, part.normals)
+
+
+def test_support_plane_of_a_large_cloud_from_a_sample():
+    """Beyond PLANE_SCORE_SAMPLE points RANSAC counts inliers on a sample; the plane, refitted to
+    its inliers among all the points, is the table's."""
+    rng = np.random.default_rng(6)
+    n = 3 * dense.PLANE_SCORE_SAMPLE
+    tilt = np.deg2rad(10.0)
+    normal = np.array([0.0, np.sin(tilt), np.cos(tilt)])
+    u = np.array([1.0, 0.0, 0.0])
+    v = np.cross(normal, u)
+    xy = rng.uniform(-0.5, 0.5, (n, 2))
+    table = xy[:, :1] * u + xy[:, 1:] * v + 2e-4 * rng.standard_normal((n, 1)) * normal
+    clutter = rng.uniform(-0.5, 0.5, (n // 2, 3)) + 0.3 * normal
+    P = np.concatenate([table, clutter])
+    cams = np.array([[0.0, 0.0, 2.0], [1.0, 0.0, 1.5]])
+    found = dense.fit_support_plane(P, cams, 0.002, 200, 0.3, seed=0)
+    assert found is not None
+    n_est, centroid, inliers = found
+    assert inliers.shape == (len(P),)
+    assert np.degrees(np.arccos(abs(n_est @ normal))) < 0.05
+    assert n_est @ normal > 0  # towards the cameras
+    assert abs((centroid @ normal)) < 1e-3
+    assert inliers[:n].mean() > 0.99 and inliers[n:].mean() < 0.01
+
+
 def test_depth_fusion_counts_as_point_by_point():
     """The fusion of merged points against the depth maps (view-major, only the points inside
     a view looked up) gives what comparing every point with every view's depth gives."""
