@@ -23,6 +23,7 @@ import pycolmap
 from scipy.spatial import cKDTree
 
 from artrecon.errors import ReconstructionError
+from artrecon.workers import side_by_side
 
 log = logging.getLogger(__name__)
 
@@ -149,14 +150,23 @@ def _similar_images(fa: dict, fb: dict, k: int, sample: int, seed: int) -> dict[
     # are dominated by BLAS call overhead), then the mutual ratio test per block.
     bounds = np.cumsum([0] + [len(d) for d in sb])
     all_b = np.concatenate(sb) if sb else np.zeros((0, 128), np.float32)
-    out = {}
-    for i, name in enumerate(names_a):
-        sim = sa[i] @ all_b.T
-        scores = np.array([len(_mutual_ratio(sa[i], sb[j], 0.9,
-                                             sim[:, bounds[j]:bounds[j + 1]])[0])
-                           for j in range(len(sb))])
-        out[name] = [names_b[j] for j in np.argsort(-scores)[:k] if scores[j] > 0]
-    return out
+
+    def rank(rows: range) -> list[list[str]]:
+        out = []
+        for i in rows:
+            sim = sa[i] @ all_b.T
+            scores = np.array([len(_mutual_ratio(sa[i], sb[j], 0.9,
+                                                 sim[:, bounds[j]:bounds[j + 1]])[0])
+                               for j in range(len(sb))])
+            out.append([names_b[j] for j in np.argsort(-scores)[:k] if scores[j] > 0])
+        return out
+
+    # the images of A in two halves, side by side on the two cores (the run holds one BLAS
+    # thread): each image's ranking is its own, so the result is the same
+    half = len(names_a) // 2
+    first, second = side_by_side(lambda: rank(range(half)),
+                                 lambda: rank(range(half, len(names_a))))
+    return dict(zip(names_a, first + second, strict=True))
 
 
 def match_configurations(sfm_a, sfm_b, config: MatchConfig = MatchConfig(), seed: int = 0,
