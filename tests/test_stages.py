@@ -115,7 +115,7 @@ def test_to_configurations_then_from_matches_gives_the_whole_runs_model(
 
     with monkeypatch.context() as m:
         m.setattr(configuration, "run_sfm", recompute)
-        m.setattr(configuration, "dense_points", recompute)
+        m.setattr(configuration, "fused_points", recompute)
         assert main(command[1:]) == 0
         capsys.readouterr()
         _assert_same_model(out, whole)
@@ -156,7 +156,7 @@ def test_to_matches_then_from_links_gives_the_whole_runs_model_and_takes_other_s
 
     with monkeypatch.context() as m:
         m.setattr(configuration, "run_sfm", recompute)
-        m.setattr(configuration, "dense_points", recompute)
+        m.setattr(configuration, "fused_points", recompute)
         m.setattr(matches_stage, "match_configurations", recompute)
         assert main(command[1:]) == 0
         capsys.readouterr()
@@ -223,7 +223,7 @@ def _patch_stages_before(m, first: str) -> None:
     before = list(STAGES)[:list(STAGES).index(first)]
     if "configurations" in before:
         m.setattr(configuration, "run_sfm", _recompute)
-        m.setattr(configuration, "dense_points", _recompute)
+        m.setattr(configuration, "fused_points", _recompute)
     if "matches" in before:
         m.setattr(matches_stage, "match_configurations", _recompute)
     if "links" in before:
