@@ -32,7 +32,8 @@ from threadpoolctl import threadpool_limits
 
 log = logging.getLogger(__name__)
 
-__all__ = ["die_with_parent", "pool", "side_by_side", "single_threaded", "submit", "stop"]
+__all__ = ["die_with_parent", "interrupts_remembered", "pool", "raise_if_interrupted",
+           "side_by_side", "single_threaded", "submit", "stop"]
 
 A = TypeVar("A")
 B = TypeVar("B")
@@ -107,6 +108,45 @@ def side_by_side(task_a: Callable[[], A], task_b: Callable[[], B]) -> tuple[A, B
             future.cancel()
             raise
         return a, future.result()
+
+
+#: Set by the SIGINT handler of :func:`interrupts_remembered`.
+_INTERRUPTED = threading.Event()
+
+
+@contextmanager
+def interrupts_remembered() -> Iterator[None]:
+    """Ctrl-C raises KeyboardInterrupt as usual within the block, and is also remembered, for
+    :func:`raise_if_interrupted` to raise it again: a library may swallow the exception. PyOpenGL
+    converts its arguments in Python, and an interrupt landing there reaches it as a
+    ``ctypes.ArgumentError``, an ``Exception`` that a library's ``except Exception`` can drop
+    (a capture interrupted in CI ran on to the end and published its images, exit status 0).
+
+    Only in the main thread of a process that takes Ctrl-C (not in workers, which ignore it:
+    :func:`submit`); elsewhere the block runs unchanged."""
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield
+        return
+
+    def remember(signum, frame):
+        _INTERRUPTED.set()
+        raise KeyboardInterrupt
+
+    _INTERRUPTED.clear()
+    previous = signal.signal(signal.SIGINT, remember)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def raise_if_interrupted() -> None:
+    """KeyboardInterrupt if Ctrl-C came within :func:`interrupts_remembered`'s block, whether or
+    not its exception got through: call it where a run commits (before it publishes a result),
+    and between units of work."""
+    if _INTERRUPTED.is_set():
+        raise KeyboardInterrupt
 
 
 @contextmanager

@@ -167,6 +167,33 @@ def test_killed_and_interrupted_reconstructions_keep_the_old_result(rendered, tm
     assert len(ArticulatedModel.load(out / "model.json").joints) == 1
 
 
+def test_a_ctrl_c_a_library_swallowed_still_stops_the_work():
+    """Within interrupts_remembered a SIGINT raises KeyboardInterrupt and is remembered: when a
+    library drops the exception (PyOpenGL sees a Ctrl-C in its argument conversion as a
+    ctypes.ArgumentError; a capture in CI ran on and published, exit status 0),
+    raise_if_interrupted raises it again at the run's next check."""
+    from artrecon import workers
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        workers.raise_if_interrupted()  # nothing yet
+        with workers.interrupts_remembered():
+            workers.raise_if_interrupted()
+            try:
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(1.0)  # the handler runs here
+                raise AssertionError("no KeyboardInterrupt")
+            except KeyboardInterrupt:
+                pass  # a library's except that drops it
+            with pytest.raises(KeyboardInterrupt):
+                workers.raise_if_interrupted()
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        with workers.interrupts_remembered():  # a new block starts afresh
+            workers.raise_if_interrupted()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def test_interrupted_capture_is_one_line_and_leaves_nothing(tmp_path):
     out = tmp_path / "a"
     proc = _start(["sim.capture", "pliers", "--config", "a", "--views", "8", "--out", str(out),

@@ -9,6 +9,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+from artrecon import workers
 from artrecon.errors import InputError
 from artrecon.settings import parse_settings
 from sim import views
@@ -57,11 +58,12 @@ def main(argv=None) -> int:
         p.error(str(e))
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
-        res = capture(args.scene, args.config, args.out, view_plan=plan,
-                      capture_config=settings.capture,
-                      free_camera_fallback=args.free_camera_fallback,
-                      overwrite=args.overwrite, progress=not args.quiet,
-                      plan_cache=args.plan_cache)
+        with workers.interrupts_remembered():
+            res = capture(args.scene, args.config, args.out, view_plan=plan,
+                          capture_config=settings.capture,
+                          free_camera_fallback=args.free_camera_fallback,
+                          overwrite=args.overwrite, progress=not args.quiet,
+                          plan_cache=args.plan_cache)
     except (ValueError, FileNotFoundError, FileExistsError, PermissionError,
             CaptureError) as e:
         p.exit(2, f"error: {e}\n")

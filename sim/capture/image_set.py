@@ -25,6 +25,7 @@ import mujoco
 import numpy as np
 from tqdm import tqdm
 
+from artrecon import workers
 from artrecon.files import publish_dir, work_dir
 from artrecon.geometry import rotation_angle
 from sim import render, robot, views
@@ -195,6 +196,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
             t_move = t_render = move_cpu = png_cpu = 0.0
             max_dp = max_dr = 0.0
             for i, view in enumerate(to_take):
+                workers.raise_if_interrupted()  # a Ctrl-C a library swallowed (PyOpenGL)
                 name = f"{i:03d}.png"
                 t0, c0 = time.perf_counter(), time.thread_time()
                 path_hits: list[str] = []
@@ -255,6 +257,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
                 png_cpu += w.result()  # raises the first failed write
             for rel, obj in records.items():
                 (tmp / rel).write_text(json.dumps(obj, indent=2) + "\n")
+            workers.raise_if_interrupted()
             publish_dir(tmp, out_dir)
         except BaseException:
             bar.close()
