@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 
-from artrecon import workers
 from artrecon.errors import InputError
 from artrecon.settings import parse_settings
 from sim import perturb
@@ -204,8 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     seeds = args.seeds or [ev.seed]
     try:
         if len(seeds) == 1 and cfg.inline and not cfg.resume:
-            with workers.interrupts_remembered():  # the captures check it before publishing
-                results = run(names, replace(ev, seed=seeds[0]), args.out, argv)
+            results = run(names, replace(ev, seed=seeds[0]), args.out, argv)
         else:
             results = sweep.run_sweep(sweep.plan(names, ev, seeds), args.out, cfg, argv=argv)
     except sweep.SweepError as err:
