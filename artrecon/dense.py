@@ -353,11 +353,10 @@ class FusedPoints:
         idx = np.arange(len(self.points)) if mask is None else np.asarray(mask)
         if idx.dtype == bool:
             idx = np.flatnonzero(idx)
-        P = self.points[idx]
-        normals = estimate_normals(P, self.visibility[idx], self.centres, self.normal_neighbours,
+        P, vis = self.points[idx], self.visibility[idx]
+        normals = estimate_normals(P, vis, self.centres, self.normal_neighbours,
                                    neighbours=self.points)
-        return DensePoints(P, normals, self.colors[idx], self.visibility[idx],
-                           list(self.image_names))
+        return DensePoints(P, normals, self.colors[idx], vis, list(self.image_names))
 
 
 def dense_points(sfm, config: DenseConfig = DenseConfig(), progress=None) -> DensePoints:

@@ -117,10 +117,10 @@ _INTERRUPTED = threading.Event()
 @contextmanager
 def interrupts_remembered() -> Iterator[None]:
     """Ctrl-C raises KeyboardInterrupt as usual within the block, and is also remembered, for
-    :func:`raise_if_interrupted` to raise it again: a library may swallow the exception. PyOpenGL
-    converts its arguments in Python, and an interrupt landing there reaches it as a
-    ``ctypes.ArgumentError``, an ``Exception`` that a library's ``except Exception`` can drop
-    (a capture interrupted in CI ran on to the end and published its images, exit status 0).
+    :func:`raise_if_interrupted` to raise it again: a library may swallow the exception (a
+    capture interrupted in CI ran on to the end and published its images, exit status 0; where
+    it was lost is not known: PyOpenGL, which reports an interrupt in its argument conversion as
+    a ``ctypes.ArgumentError``, an ``Exception``, is the likely place).
 
     Only in the main thread of a process that takes Ctrl-C (not in workers, which ignore it:
     :func:`submit`); elsewhere the block runs unchanged."""

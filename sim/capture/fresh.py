@@ -11,7 +11,6 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from artrecon import workers
 from artrecon.files import work_dir
 from sim import render, robot, views
 from sim.capture.arm import Arm
@@ -119,6 +118,5 @@ def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.
         (tmp / "pose.json").write_text(json.dumps(pose, indent=2) + "\n")
         (tmp / "ground_truth.json").write_text(json.dumps(
             {"T_world_camera": as_list(T_true)}, indent=2) + "\n")
-        workers.raise_if_interrupted()  # a Ctrl-C a library swallowed (PyOpenGL)
         os.replace(tmp, out_dir)  # never over a folder made since the check: not publish_dir()
     return FreshView(out_dir / "fresh.png", out_dir / "pose.json", q, T_flange, T_true)

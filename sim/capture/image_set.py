@@ -196,7 +196,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
             t_move = t_render = move_cpu = png_cpu = 0.0
             max_dp = max_dr = 0.0
             for i, view in enumerate(to_take):
-                workers.raise_if_interrupted()  # a Ctrl-C a library swallowed (PyOpenGL)
+                workers.raise_if_interrupted()  # a Ctrl-C that a library swallowed
                 name = f"{i:03d}.png"
                 t0, c0 = time.perf_counter(), time.thread_time()
                 path_hits: list[str] = []
