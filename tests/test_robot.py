@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import mujoco
@@ -14,17 +15,20 @@ import sim  # noqa: F401  (sets the GL platform before anything else)
 from sim.camera import T_GL_CV, mujoco_camera_intrinsics
 from sim.robot import (
     CAMERA_FOCAL_PX,
+    PANDA,
     PUMA560,
     PUMA560_GRASP_OFFSET,
     PUMA560_T_FLANGE_CAMERA,
     DHLink,
     actuator_indices,
+    closed_form,
     dh_forward,
     dh_transform,
     load_arm_kinematics,
     look_at_pose,
     qpos_indices,
     ring_camera_poses,
+    solve_view_ik,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -279,3 +283,50 @@ def test_rail_servo_turns_the_arm_on_the_stage(stage):
     cam = model.camera(PUMA560.prefix + PUMA560.camera).id
     np.testing.assert_allclose(data.cam_xpos[cam], kin.camera_pose(data.qpos[qi])[:3, 3],
                                atol=1e-9)
+
+
+def test_closed_form_finds_every_configuration_of_a_flange_pose(stage):
+    """The closed form's solutions (shoulder, elbow, wrist flip) at a rail angle all put the
+    flange where asked, and the configuration the pose came from is one of them."""
+    _, kin = stage
+    ik = kin.closed_form
+    assert ik is not None and closed_form.supports(kin.spec)
+    counts = []
+    for q in _random_q(kin, 200, seed=11):
+        T = kin.frame_pose(q, "flange")
+        sols, valid = ik.solutions(T, [q[0]], q)
+        counts.append(int(valid.sum()))
+        assert valid.any()
+        # the source configuration, each joint the whole turn nearest itself
+        assert np.min(np.max(np.abs(sols[0][valid[0]] - q), axis=1)) < 1e-9
+        for s in sols[0][valid[0]]:
+            assert np.all(s >= kin.lower) and np.all(s <= kin.upper)
+            np.testing.assert_allclose(kin.frame_pose(s, "flange"), T, atol=FK_TOL)
+    # the eight branches exist for most poses; joint limits remove some
+    assert max(counts) == 8 and np.mean(counts) > 3
+
+
+def test_closed_form_view_ik_is_exact_and_says_why_it_fails(stage):
+    _, kin = stage
+    for q in _random_q(kin, 30, seed=12):
+        T = kin.camera_pose(q)
+        res = solve_view_ik(kin, T, q)
+        assert res.success and res.reason == ""
+        assert res.position_error < 1e-12 and res.rotation_error < 1e-6
+        np.testing.assert_allclose(kin.camera_pose(res.q), T, atol=FK_TOL)
+        # from a guess at the true configuration the solution is that configuration, unless
+        # another rail angle was needed (the azimuth's rail angle is tried first)
+        rel = T[:3, 3] - kin.frame_pose(np.zeros(kin.nq), "rail")[:3, 3]
+        if abs(kin.rail_angle_for_azimuth(np.arctan2(rel[1], rel[0])) - q[0]) < 1e-9:
+            np.testing.assert_allclose(res.q, q, atol=1e-9)
+    far = look_at_pose(np.array([3.0, 0.0, 1.0]), np.array([4.0, 0.0, 1.0]))
+    res = solve_view_ik(kin, far)
+    assert not res.success and "out of reach" in res.reason
+    assert np.all(res.q >= kin.lower) and np.all(res.q <= kin.upper)
+
+
+def test_closed_form_is_only_for_the_structure_it_solves():
+    assert closed_form.supports(PUMA560)
+    assert not closed_form.supports(PANDA)  # a URDF arm, no spherical wrist
+    bent = PUMA560.dh[:3] + (DHLink(a=0.05, alpha=np.pi / 2, d=0.4318),) + PUMA560.dh[4:]
+    assert not closed_form.supports(replace(PUMA560, dh=bent))

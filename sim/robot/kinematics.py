@@ -61,6 +61,9 @@ class IKResult:
     """distance between the frame and the target (m)"""
     rotation_error: float
     """angle between the frame and the target orientation (rad); 0 for position-only solves"""
+    reason: str = ""
+    """why it failed, where the solver knows (the closed form: out of reach, or no
+    configuration within the joint limits); empty on success"""
 
 
 def check_pose(T, name: str) -> np.ndarray:
@@ -100,6 +103,16 @@ class ArmKinematics:
         #: azimuth (about world z, from world x) of DH frame 0 when the rail is at 0
         self.azimuth_at_zero = float(azimuth_at_zero)
         self._memo: dict[tuple, IKResult] = {}
+        self._closed_form = None
+
+    @property
+    def closed_form(self):
+        """:class:`sim.robot.closed_form.SphericalWristIK` of this arm, or None if its
+        kinematics are not of the structure it solves (a URDF arm: the Panda)."""
+        if self._closed_form is None:
+            from sim.robot.closed_form import SphericalWristIK, supports
+            self._closed_form = SphericalWristIK(self) if supports(self.spec) else False
+        return self._closed_form or None
 
     @property
     def nq(self) -> int:

@@ -3,11 +3,20 @@
 from __future__ import annotations
 
 import logging
+import math
 
 import mujoco
 import numpy as np
 
-from sim.robot.kinematics import ArmKinematics, IKResult, check_pose, mj_id
+from sim.robot.closed_form import Unreachable
+from sim.robot.kinematics import (
+    IK_ACCEPT_POSITION,
+    IK_ACCEPT_ROTATION,
+    ArmKinematics,
+    IKResult,
+    check_pose,
+    mj_id,
+)
 from sim.robot.spec import PUMA560
 
 log = logging.getLogger(__name__)
@@ -29,6 +38,12 @@ def solve_view_ik(kin: ArmKinematics, T_world_camera, q0=None, *, restarts: int 
     the rail axis (the stage is symmetric about that axis, so every view of a ring then needs the
     same arm configuration); if the arm cannot reach the view from there, the rail is freed.
 
+    An arm with a spherical wrist (the PUMA: :attr:`ArmKinematics.closed_form`) is solved in
+    closed form: of its (up to eight) configurations at that rail angle, or else at the rail
+    angle nearest it that has one, the one nearest the guess, exact to round-off; a failure
+    says why (out of reach, or no configuration within the joint limits). Other arms (the
+    Panda) by damped least squares from the guess, its wrist flipped, and random restarts.
+
     Parameters
     ----------
     kin : ArmKinematics
@@ -37,7 +52,7 @@ def solve_view_ik(kin: ArmKinematics, T_world_camera, q0=None, *, restarts: int 
     q0 : (n,) float, optional
         Initial guess (e.g. the previous view's solution); its rail entry is replaced.
     restarts, seed
-        Random restarts per attempt and their seed.
+        Random restarts per attempt and their seed (damped least squares only).
 
     Returns
     -------
@@ -49,6 +64,8 @@ def solve_view_ik(kin: ArmKinematics, T_world_camera, q0=None, *, restarts: int 
     start = np.zeros(kin.nq)
     start[1:] = kin.spec.home if q0 is None else np.asarray(q0, dtype=float)[1:]
     start[0] = kin.rail_angle_for_azimuth(np.arctan2(rel[1], rel[0]))
+    if kin.closed_form is not None:
+        return _closed_form_view(kin, T, start)
     attempts = [(start, 0)]
     if kin.spec.wrist_flip:
         # A spherical wrist (the PUMA's) reaches the same orientation with the wrist flipped
@@ -75,6 +92,21 @@ def solve_view_ik(kin: ArmKinematics, T_world_camera, q0=None, *, restarts: int 
                                                         + result.rotation_error):
             result = free
     return result
+
+
+def _closed_form_view(kin: ArmKinematics, T: np.ndarray, start: np.ndarray) -> IKResult:
+    """:func:`solve_view_ik` for an arm with a closed form: ``start`` holds the rail angle at
+    the view's azimuth and the guess."""
+    q = kin.closed_form.solve(T, float(start[0]), start)
+    if isinstance(q, Unreachable):
+        return IKResult(q=kin.clip(start), success=False, position_error=math.inf,
+                        rotation_error=math.inf, reason=q.reason)
+    T_q = kin.camera_pose(q)
+    p_err = float(np.linalg.norm(T_q[:3, 3] - T[:3, 3]))
+    cos = np.clip((np.trace(T_q[:3, :3].T @ T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+    r_err = float(np.arccos(cos))
+    return IKResult(q=q, success=bool(p_err < IK_ACCEPT_POSITION and r_err < IK_ACCEPT_ROTATION),
+                    position_error=p_err, rotation_error=r_err)
 
 
 def arm_contacts(model, data, kin: ArmKinematics) -> list[tuple[str, str]]:

@@ -40,8 +40,9 @@ def _solve_one(model, data, kin, view: View, q_prev, *, seed: int, restarts: int
                                       restarts=restarts if roll == 0.0
                                       else min(rolled_restarts, restarts))
             if not res.success:
-                reasons.append(f"roll {roll:+.0f}: IK {res.position_error * 1e3:.1f} mm "
-                               f"{np.rad2deg(res.rotation_error):.2f} deg off")
+                reasons.append(f"roll {roll:+.0f}: " + (
+                    res.reason or f"IK {res.position_error * 1e3:.1f} mm "
+                                  f"{np.rad2deg(res.rotation_error):.2f} deg off"))
                 continue
             q = res.q if q_prev is None else kin.nearest_equivalent(res.q, q_prev)
             data.qpos[:] = saved
