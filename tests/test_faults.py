@@ -261,3 +261,35 @@ def test_a_killed_parents_worker_dies_with_it(tmp_path):
     while _alive(worker) and time.monotonic() - t0 < 10.0:
         time.sleep(0.05)
     assert not _alive(worker), f"worker {worker} outlived its killed parent"
+
+
+_STOPPED_SCRIPT = """
+import os, sys, time
+from tqdm import tqdm
+from artrecon import workers
+
+def task(path):
+    bar = tqdm(total=1, disable=True)  # a capture's bar, silenced as in --quiet
+    open(path, "w").write(str(os.getpid()))
+    time.sleep(120)
+
+if __name__ == "__main__":
+    pool = workers.pool(1)
+    pool.submit(task, sys.argv[1])
+    while not os.path.exists(sys.argv[1]):
+        time.sleep(0.05)
+    workers.stop(pool)  # as on Ctrl-C
+    print("interrupted", file=sys.stderr)
+"""
+
+
+def test_a_stopped_worker_leaves_no_semaphore_behind(tmp_path):
+    """A worker killed by workers.stop after its first progress bar: the parent's exit printed
+    the resource tracker's "leaked semaphore objects" warning after the one "interrupted" line
+    (tqdm's bar lock is a multiprocessing semaphore unless the worker has its own)."""
+    script = tmp_path / "stopped.py"
+    script.write_text(_STOPPED_SCRIPT)
+    proc = subprocess.run([sys.executable, str(script), str(tmp_path / "worker.pid")], cwd=REPO,
+                          timeout=120, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert _lines(proc.stderr) == ["interrupted"], proc.stderr
