@@ -182,9 +182,16 @@ class SphericalWristIK:
     # ------------------------------------------------------------------------------------------
     def solve(self, T_world_camera: np.ndarray, rail: float, reference, *,
               free_rail: bool = True) -> np.ndarray | Unreachable:
-        """The solution for a camera pose nearest ``reference``: at rail angle ``rail`` if one
-        exists there, else (``free_rail``) at the rail angle of the search grid nearest ``rail``
-        that has one.
+        """The solution for a camera pose with the smallest largest joint step from
+        ``reference`` (rail included): at rail angle ``rail`` or (``free_rail``) at any rail
+        angle of the search grid.
+
+        The view plan passes the view's azimuth rail angle and the previous view's arm joints:
+        along a ring the arm keeps its configuration and the rail turns (the stage is symmetric
+        about the rail's axis), and where the azimuth's rail angle has no solution, or only one
+        far from the last (another shoulder, elbow or wrist branch), the rail turns further
+        instead of the arm swinging round. A large step is a long move, and the servos' lag
+        along it what the straight line the plan checks does not hold.
 
         Returns
         -------
@@ -192,30 +199,26 @@ class SphericalWristIK:
         """
         T_flange = np.asarray(T_world_camera, dtype=float) @ np.linalg.inv(self.T_flange_camera)
         ref = np.asarray(reference, dtype=float)
-        for rails in ([rail], self._rails_by_distance(rail, T_flange) if free_rail else None):
-            if rails is None or not len(rails):
-                break
-            q, valid = self.solutions(T_flange, np.asarray(rails), ref)
-            if not valid.any():
-                continue
-            # nearest rail first, then the arm configuration nearest the reference
-            i = int(np.flatnonzero(valid.any(axis=1))[0])
-            cand = q[i][valid[i]]
-            d = np.sum((cand[:, 1:] - ref[1:]) ** 2, axis=1)
-            for c in cand[np.argsort(d, kind="stable")]:
+        rails = np.array([rail])
+        if free_rail:
+            rails = np.concatenate([rails, self._rails_within_reach(T_flange)])
+        q, valid = self.solutions(T_flange, rails, ref)
+        cand = q[valid]
+        if len(cand):
+            step = np.abs(cand - ref)
+            order = np.lexsort((np.sum(step ** 2, axis=1), np.max(step, axis=1)))
+            for c in cand[order]:
                 if self._verify(c, T_flange):
                     return c
         return Unreachable(self._why(T_flange, rail, free_rail))
 
-    def _rails_by_distance(self, rail, T_flange):
-        """The search grid's rail angles at which the wrist centre is within the arm's reach,
-        nearest ``rail`` first."""
+    def _rails_within_reach(self, T_flange):
+        """The search grid's rail angles at which the wrist centre is within the arm's reach."""
         F0 = self._frame0_grid
         p = np.einsum("nji,nj->ni", F0[:, :3, :3], T_flange[:3, 3] - F0[:, :3, 3])
         rho2 = p[:, 0] ** 2 + p[:, 1] ** 2 - self.d3 ** 2
         D = (rho2 + p[:, 2] ** 2 - self.a2 ** 2 - self.L ** 2) / (2.0 * self.a2 * self.L)
-        grid = self.rail_grid[(rho2 >= 0.0) & (np.abs(D) <= 1.0)]
-        return grid[np.argsort(np.abs(grid - rail), kind="stable")]
+        return self.rail_grid[(rho2 >= 0.0) & (np.abs(D) <= 1.0)]
 
     def _verify(self, q, T_flange) -> bool:
         T = self.kin.frame_pose(q, "flange")

@@ -39,9 +39,10 @@ def solve_view_ik(kin: ArmKinematics, T_world_camera, q0=None, *, restarts: int 
     same arm configuration); if the arm cannot reach the view from there, the rail is freed.
 
     An arm with a spherical wrist (the PUMA: :attr:`ArmKinematics.closed_form`) is solved in
-    closed form: of its (up to eight) configurations at that rail angle, or else at the rail
-    angle nearest it that has one, the one nearest the guess, exact to round-off; a failure
-    says why (out of reach, or no configuration within the joint limits). Other arms (the
+    closed form: of its (up to eight) configurations at that rail angle and at every other,
+    the one whose largest joint step from there (the guess's arm joints, the azimuth's rail
+    angle) is smallest, exact to round-off; a failure says why (out of reach, or no
+    configuration within the joint limits). Other arms (the
     Panda) by damped least squares from the guess, its wrist flipped, and random restarts.
 
     Parameters
