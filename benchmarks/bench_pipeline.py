@@ -168,7 +168,8 @@ def main() -> int:
             wall, cpu = time.perf_counter() - t, _cpu_s() - cpu
             row = {"scene": name, "views_per_ring": args.views, "wall_s": round(wall, 1),
                    "cpu_s": round(cpu, 1), "passed": r.get("passed"),
-                   "error": r.get("error"), "cached": r.get("cached_stages"),
+                   "failed_gates": r.get("failed_gates"), "error": r.get("error"),
+                   "cached": r.get("cached_stages"),
                    "stages_s": {k: round(v, 1) for k, v in r["timings_s"].items()
                                 if v is not None}}
             if not r.get("error"):

@@ -330,3 +330,26 @@ def test_closed_form_is_only_for_the_structure_it_solves():
     assert not closed_form.supports(PANDA)  # a URDF arm, no spherical wrist
     bent = PUMA560.dh[:3] + (DHLink(a=0.05, alpha=np.pi / 2, d=0.4318),) + PUMA560.dh[4:]
     assert not closed_form.supports(replace(PUMA560, dh=bent))
+
+
+def test_closed_form_keeps_the_home_posture_where_the_view_allows(stage):
+    """Of the solutions for a view, the one on the home posture's shoulder and elbow comes first,
+    even when another branch is a shorter step from the guess: a capture that wandered onto
+    the other shoulder started cabinet_door_only's manipulation there, and its grasp let go."""
+    _, kin = stage
+    ik = kin.closed_form
+    home = np.r_[0.0, kin.spec.home]
+    assert ik._branch(home) == ik.home_arm_branch
+    kept = 0
+    for q in _random_q(kin, 60, seed=13):
+        T_cam = kin.camera_pose(q)
+        T = T_cam @ np.linalg.inv(ik.T_flange_camera)
+        sols, valid = ik.solutions(T, [q[0]], q)
+        on_home = valid[0] & (np.arange(8) // 2 == ik.home_arm_branch)
+        res = ik.solve(T_cam, q[0], q, free_rail=False)
+        if on_home.any():
+            assert ik._branch(res) == ik.home_arm_branch
+            kept += 1
+        elif valid.any():
+            np.testing.assert_allclose(kin.camera_pose(res), T_cam, atol=FK_TOL)
+    assert kept >= 10

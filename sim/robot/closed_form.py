@@ -88,6 +88,9 @@ class SphericalWristIK:
         n = max(2, int(np.ceil((self.upper[0] - self.lower[0]) / np.deg2rad(rail_step_deg))) + 1)
         self.rail_grid = np.linspace(self.lower[0], self.upper[0], n)
         self._frame0_grid = np.array([self.frame0(r) for r in self.rail_grid])
+        #: shoulder and elbow branch (0-3: shoulder sign x 2 + elbow sign) of the arm's home
+        #: posture: the working posture a solve keeps where the view allows
+        self.home_arm_branch = self._branch(np.r_[0.0, kin.spec.home])
 
     def _frame0s(self, rails):
         """DH frame 0 at each rail angle, from the grid's where they are the grid's."""
@@ -96,6 +99,18 @@ class SphericalWristIK:
         if np.array_equal(self.rail_grid[idx], rails):
             return self._frame0_grid[idx]
         return np.array([self.frame0(r) for r in rails])
+
+    def _branch(self, q) -> int:
+        """The shoulder-and-elbow branch (index // 2 of :meth:`solutions`) of configuration
+        ``q``."""
+        T = self.kin.frame_pose(q, "flange")
+        sols, valid = self.solutions(T, [q[0]], q)
+        err = np.where(valid[0], np.max(np.abs(sols[0] - q), axis=1), np.inf)
+        k = int(np.argmin(err))
+        if not err[k] < 1e-6:
+            raise ValueError(f"arm {self.kin.spec.name!r}: the closed form does not reproduce "
+                             "its home posture; are its DH angles offset?")
+        return k // 2
 
     def frame0(self, rail: float) -> np.ndarray:
         """DH frame 0 in the world at rail angle ``rail`` : (4, 4) float."""
@@ -182,11 +197,13 @@ class SphericalWristIK:
     # ------------------------------------------------------------------------------------------
     def solve(self, T_world_camera: np.ndarray, rail: float, reference, *,
               free_rail: bool = True) -> np.ndarray | Unreachable:
-        """The solution for a camera pose with the smallest largest joint step from
-        ``reference`` (rail included): at rail angle ``rail`` or (``free_rail``) at any rail
-        angle of the search grid.
+        """The solution for a camera pose on the home posture's shoulder and elbow, with the
+        smallest largest joint step from ``reference`` (rail included): at rail angle ``rail``
+        or (``free_rail``) at any rail angle of the search grid.
 
-        The view plan passes the view's azimuth rail angle and the previous view's arm joints:
+        The arm keeps its home posture's shoulder and elbow (:attr:`home_arm_branch`, the
+        working posture) wherever a solution on it exists; then the smallest step. The view
+        plan passes the view's azimuth rail angle and the previous view's arm joints:
         along a ring the arm keeps its configuration and the rail turns (the stage is symmetric
         about the rail's axis), and where the azimuth's rail angle has no solution, or only one
         far from the last (another shoulder, elbow or wrist branch), the rail turns further
@@ -206,7 +223,9 @@ class SphericalWristIK:
         cand = q[valid]
         if len(cand):
             step = np.abs(cand - ref)
-            order = np.lexsort((np.sum(step ** 2, axis=1), np.max(step, axis=1)))
+            other_arm = np.broadcast_to(np.arange(8) // 2 != self.home_arm_branch,
+                                        valid.shape)[valid]
+            order = np.lexsort((np.sum(step ** 2, axis=1), np.max(step, axis=1), other_arm))
             for c in cand[order]:
                 if self._verify(c, T_flange):
                     return c
