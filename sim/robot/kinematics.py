@@ -43,9 +43,11 @@ IK_ACCEPT_ROTATION = 1e-4
 IK_STALL_IMPROVEMENT = 0.95
 IK_STALL_ITERATIONS = 30
 #: Descents an arm remembers (:meth:`ArmKinematics.solve_ik`): a descent is a function of its
-#: start, target and settings, and a view plan repeats a quarter of them exactly (each candidate
-#: ring's probe views are solved again from the same starts; rolled fallbacks and second
-#: chances): drawer config a, 5138 of 20262 descents. The memory is cleared when full.
+#: start, target and settings, and a view plan by damped least squares repeats a quarter of them
+#: exactly (each candidate ring's probe views are solved again from the same starts; rolled
+#: fallbacks and second chances): drawer config a, 5138 of 20262 descents, when the PUMA's views
+#: were solved so (now in closed form, :mod:`sim.robot.closed_form`; the Panda's still are). The
+#: memory is cleared when full.
 IK_MEMO_SIZE = 50_000
 
 
