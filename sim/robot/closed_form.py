@@ -81,12 +81,12 @@ class SphericalWristIK:
         self.a2, self.a3, self.d3, self.d4 = dh[1].a, dh[2].a, dh[2].d, dh[3].d
         self.L = float(np.hypot(self.a3, self.d4))
         self.phi = float(np.arctan2(self.d4, self.a3))
-        self.lower, self.upper = kin.lower.copy(), kin.upper.copy()
         q = np.zeros(kin.nq)
         self.T_flange_camera = np.linalg.inv(kin.frame_pose(q, "flange")) @ kin.frame_pose(
             q, "camera")
-        n = max(2, int(np.ceil((self.upper[0] - self.lower[0]) / np.deg2rad(rail_step_deg))) + 1)
-        self.rail_grid = np.linspace(self.lower[0], self.upper[0], n)
+        lo, hi = kin.lower[0], kin.upper[0]
+        n = max(2, int(np.ceil((hi - lo) / np.deg2rad(rail_step_deg))) + 1)
+        self.rail_grid = np.linspace(lo, hi, n)
         self._frame0_grid = np.array([self.frame0(r) for r in self.rail_grid])
         #: shoulder and elbow branch (0-3: shoulder sign x 2 + elbow sign) of the arm's home
         #: posture: the working posture a solve keeps where the view allows
@@ -109,7 +109,8 @@ class SphericalWristIK:
         k = int(np.argmin(err))
         if not err[k] < 1e-6:
             raise ValueError(f"arm {self.kin.spec.name!r}: the closed form does not reproduce "
-                             "its home posture; are its DH angles offset?")
+                             f"the configuration {np.round(q, 4).tolist()}; are its DH angles "
+                             "offset, or the configuration outside the joint limits?")
         return k // 2
 
     def frame0(self, rail: float) -> np.ndarray:
@@ -183,7 +184,7 @@ class SphericalWristIK:
     def _nearest_within_limits(self, q, ref):
         """Each angle turned by whole turns to lie within its limits nearest ``ref``; also
         whether every joint of a solution could be brought within its limits."""
-        lo, hi = self.lower[1:], self.upper[1:]
+        lo, hi = self.kin.lower[1:], self.kin.upper[1:]  # read now: a caller may narrow them
         base = _wrap(np.nan_to_num(q))
         turns = np.arange(-2, 3) * 2.0 * np.pi
         cand = base[..., None] + turns  # (..., 6, 5)
