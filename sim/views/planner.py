@@ -6,8 +6,9 @@ empty cell, never the model's geometry), fixes the ring centre and, with the wri
 of view, the band of camera distances at which the object fills a good share of the image
 (:attr:`ViewPlanConfig.fill_range`). Every view looks at the sphere's
 centre; each is solved with the arm's inverse kinematics (rail and arm together, joint limits
-respected, :func:`sim.robot.solve_view_ik`: in closed form for the PUMA) and checked for collisions of the arm links in MuJoCo
-(contacts after ``mj_forward``: with the table, the object, the floor and the arm itself).
+respected, :func:`sim.robot.solve_view_ik`: in closed form for the PUMA) and checked for
+collisions of the arm links in MuJoCo (contacts after ``mj_forward``: with the table, the
+object, the floor and the arm itself).
 
 :func:`plan_capture` chooses each ring before committing to it: the distance in the band nearest
 the preferred fill and, only if no distance gives a ring the arm reaches everywhere without a
