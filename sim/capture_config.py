@@ -107,6 +107,7 @@ RANGES: dict[str, Range | ListOf] = {
     "views.ik_restarts": Range(0, 100, "IK restarts"),
     "views.rolled_ik_restarts": Range(0, 100, "IK restarts"),
     "views.clearance_m": Range(0, 0.1, "metres", **_OPEN),
+    "views.self_clearance_m": Range(0, 0.1, "metres"),
     "views.path_check_step": Range(0, 0.5, "radians", **_OPEN),
     "views.min_ring_distance": Range(0, 2, "metres from the object's centre", **_OPEN),
 }

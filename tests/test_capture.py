@@ -582,3 +582,39 @@ def test_every_planned_view_of_the_bundled_scenes_is_reachable(scene, config):
     again = [views.View(**{**v.__dict__}) for v in plan.views]
     views.check_paths(model, data, kin, again)
     assert all(v.reachable for v in again)
+
+
+def test_the_plan_keeps_the_wrist_links_apart_by_the_self_clearance():
+    """Bending the PUMA's wrist (joint 5) brings link 4 and link 6 together: below
+    ViewPlanConfig.self_clearance_m apart the plan's check refuses the configuration, above it
+    not; without the margin only a contact counts (cabinet seed 1's ring at 0.4-0.9 mm, which
+    the servos' lag turned into a contact)."""
+    model = mujoco.MjModel.from_xml_path(
+        str(Path(__file__).resolve().parents[1] / "scenes" / "stage.xml"))
+    data = mujoco.MjData(model)
+    kin = robot.load_arm_kinematics(model)
+    qidx = robot.qpos_indices(model, kin)
+    links, robot_ids = views.arm_link_bodies(model, kin), views.robot_bodies(model, kin)
+    cfg = views.ViewPlanConfig()
+    check = views.ClearanceCheck(model, links, robot_ids, cfg.clearance_m, cfg.self_clearance_m)
+    bare = views.ClearanceCheck(model, links, robot_ids, cfg.clearance_m)
+    body = {model.body(b).name: b for b in range(model.nbody)}
+    g4 = [g for g in range(model.ngeom) if model.geom_bodyid[g] == body["puma_link4"]]
+    g6 = [g for g in range(model.ngeom) if model.geom_bodyid[g] == body["puma_link6"]]
+    # cabinet seed 1's view 6 (degrees: rail, joints 1-6), its wrist bend swept
+    q = np.deg2rad([-128.4, -120.1, 84.0, -224.3, 55.6, -91.4, -235.9])
+    seen = set()
+    for q5 in np.deg2rad(np.linspace(-70.0, -100.0, 61)):
+        q[5] = q5
+        data.qpos[qidx] = q
+        mujoco.mj_forward(model, data)
+        gap = min(mujoco.mj_geomDistance(model, data, a, b, 0.05, None) for a in g4 for b in g6)
+        wrist = [h for h in check(data) if "link4" in h and "link6" in h]
+        if gap > cfg.self_clearance_m + 2e-4:
+            assert not wrist, (np.rad2deg(q5), gap, wrist)
+            seen.add("apart")
+        elif 2e-4 < gap < cfg.self_clearance_m - 2e-4:
+            assert wrist, (np.rad2deg(q5), gap)
+            assert not [h for h in bare(data) if "link4" in h and "link6" in h]
+            seen.add("close")
+    assert seen == {"apart", "close"}, seen

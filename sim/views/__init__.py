@@ -12,6 +12,7 @@ holds it.
 """
 
 from sim.views.clearance import (
+    ClearanceCheck,
     arm_collisions,
     arm_link_bodies,
     clearance_violations,
@@ -48,7 +49,8 @@ from sim.views.survey import Survey, SurveyConfig, SurveyError, survey_object
 __all__ = [
     "DEFAULT_VIEWS_PER_RING", "ELEVATION_LIMITS_DEG", "MAX_NEIGHBOUR_ANGLE_DEG", "MIN_VIEWS",
     "PLAN_FORMAT", "Ring", "Survey", "SurveyConfig", "SurveyError",
-    "View", "ViewPlan", "ViewPlanConfig", "arm_collisions", "arm_link_bodies", "candidates",
+    "View", "ViewPlan", "ViewPlanConfig", "ClearanceCheck",
+    "arm_collisions", "arm_link_bodies", "candidates",
     "check_paths", "clearance_violations", "fill_at_distance", "object_bodies",
     "object_bounding_sphere", "order_for_rail", "plan_capture", "plan_from_json", "plan_to_json",
     "plan_views", "ring_distance", "ring_phases", "ring_size", "ring_sizes", "ring_views",

@@ -69,14 +69,20 @@ def clearance_violations(model: mujoco.MjModel, data: mujoco.MjData, links: set[
 
 
 class ClearanceCheck:
-    """:func:`clearance_violations` with its masks and margins prepared once: a large object's
+    """:func:`clearance_violations` with its masks and margins prepared once, and
+    ``self_clearance`` (m, at most ``clearance``) between two parts of the robot (the function:
+    contact only). Masks and margins once: a large object's
     plan checks ~10^5 configurations, and preparing them per call (body masks, the arm geoms'
     margins read and raised) was 60% of a check's CPU (28 of 47 us, drawer). The same contacts
     and strings as the function; the margins are restored after every call."""
 
     def __init__(self, model: mujoco.MjModel, links: set[int], robot_body_ids: set[int],
-                 clearance: float = ViewPlanConfig.clearance_m):
+                 clearance: float = ViewPlanConfig.clearance_m, self_clearance: float = 0.0):
+        if not 0.0 <= self_clearance <= clearance:
+            raise ValueError(f"self_clearance must lie within [0, clearance = {clearance}], "
+                             f"got {self_clearance}")
         self.model, self.clearance = model, float(clearance)
+        self.self_clearance = float(self_clearance)
         self.is_link, self.is_robot = _body_masks(model, links, robot_body_ids)
         self.arm_geom = np.flatnonzero(self.is_link[model.geom_bodyid])
         self.saved = model.geom_margin[self.arm_geom].copy()
@@ -95,7 +101,7 @@ class ClearanceCheck:
             dist = data.contact.dist[:n]
             bodies = model.geom_bodyid[geoms]
             near = self.is_link[bodies].any(axis=1)
-            limit = np.where(self.is_robot[bodies].all(axis=1), 0.0, clearance)
+            limit = np.where(self.is_robot[bodies].all(axis=1), self.self_clearance, clearance)
             out = [f"{_geom_name(model, int(g1))}/{_geom_name(model, int(g2))} ({d * 1e3:.1f} mm)"
                    for (g1, g2), d in zip(geoms[near & (dist < limit)],
                                           dist[near & (dist < limit)], strict=True)]

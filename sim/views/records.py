@@ -98,6 +98,13 @@ class ViewPlanConfig:
     blade that the rail's lag (0.3 s behind the wrist) turned into a contact, and the capture
     failed. 1 cm is also a fifth of the 5 cm a joint step of `path_check_step` moves the
     wrist at most, the margin between two checked configurations"""
+    self_clearance_m: float = 0.003
+    """clearance (m) the planned arm's links keep from each other and from the rest of the robot
+    (at every view and checked step), less than ``clearance_m``: parts of one arm pass closer by
+    design. With none, the closed-form IK put a ring's views of cabinet (seed 1) 0.4-0.9 mm
+    from a contact of the wrist's link 4 with link 6 (the wrist bent to -91 deg), and the
+    servos' lag along the move to view 7 made it one: the capture failed, as drawer's (seed 2)
+    and cabinet_door_only's (seed 1) did"""
     path_check_step: float = 0.02
     """largest joint step (rad) between the configurations checked for contacts along the
     straight joint-space move from one view to the next (sim.capture drives the servos along

@@ -100,7 +100,8 @@ def solve_views(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinema
     kw = dict(restarts=config.ik_restarts if restarts is None else restarts,
               rolled_restarts=config.rolled_ik_restarts,
               rolls=tuple(config.roll_candidates_deg if rolls is None else rolls),
-              check=ClearanceCheck(model, links, robot_bodies(model, kin), config.clearance_m),
+              check=ClearanceCheck(model, links, robot_bodies(model, kin), config.clearance_m,
+                                 config.self_clearance_m),
               qidx=qidx, saved=saved)
     q_prev = None if q_start is None else np.asarray(q_start, dtype=float)
     failed = False
@@ -137,7 +138,8 @@ def check_paths(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinema
                 views: list[View], q_start=None,
                 config: ViewPlanConfig = ViewPlanConfig()) -> None:
     """Check the straight joint-space move into every reachable view: the arm keeps
-    ``config.clearance_m`` from everything outside the robot and does not touch itself, at
+    ``config.clearance_m`` from everything outside the robot and ``config.self_clearance_m``
+    from itself, at
     configurations at most ``config.path_check_step`` apart along the move.
 
     The arm travels from ``q_start`` (if given) to the first reachable view, then from each
@@ -148,7 +150,8 @@ def check_paths(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinema
     """
     qidx = robot.qpos_indices(model, kin)
     links = arm_link_bodies(model, kin)
-    check = ClearanceCheck(model, links, robot_bodies(model, kin), config.clearance_m)
+    check = ClearanceCheck(model, links, robot_bodies(model, kin), config.clearance_m,
+                           config.self_clearance_m)
     saved = data.qpos.copy()
     q_prev = None if q_start is None else np.asarray(q_start, dtype=float)
     for view in views:
