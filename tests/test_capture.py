@@ -233,6 +233,7 @@ CHANGED_PLAN_SETTINGS = {
     "fill_step": 0.025, "elevation_step_deg": 5.0, "probe_views": 4, "probe_ik_restarts": 3,
     "ik_restarts": 16, "rolled_ik_restarts": 1, "roll_candidates_deg": (0.0, 180.0),
     "clearance_m": 0.015, "path_check_step": 0.01, "min_ring_distance": 0.3,
+    "self_clearance_m": 0.005,
 }
 
 
@@ -258,6 +259,8 @@ def test_every_view_plan_setting_is_in_the_plan_cache_key():
     ({"fill_step": -0.05}, "fill_step must be a positive number"),
     ({"clearance_m": float("nan")}, "clearance_m must be a positive number"),
     ({"min_ring_distance": -0.25}, "min_ring_distance must be a positive number"),
+    ({"self_clearance_m": 0.02}, r"self_clearance_m must lie in \[0, clearance_m"),
+    ({"self_clearance_m": -0.001}, r"self_clearance_m must lie in \[0, clearance_m"),
     ({"roll_candidates_deg": (90.0, 0.0)}, "must start with 0"),
     ({"roll_candidates_deg": ()}, "must start with 0"),
 ])

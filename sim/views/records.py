@@ -140,6 +140,10 @@ class ViewPlanConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"ViewPlanConfig.{name} must be a positive number, got {value}")
+        if not (np.isfinite(self.self_clearance_m)
+                and 0.0 <= self.self_clearance_m <= self.clearance_m):
+            raise ValueError(f"ViewPlanConfig.self_clearance_m must lie in [0, clearance_m = "
+                             f"{self.clearance_m}], got {self.self_clearance_m}")
         for name, least in (("probe_views", 1), ("probe_ik_restarts", 0), ("ik_restarts", 0),
                             ("rolled_ik_restarts", 0)):
             value = getattr(self, name)
