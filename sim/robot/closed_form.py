@@ -57,6 +57,11 @@ def _rz_ry(a, b):
                      np.stack([-sb, z, cb], -1)], -2)
 
 
+def _in_frame0(F0, T_world_flange):
+    """The flange's origin (the wrist centre) in each DH frame 0 of ``F0`` : (n, 3) float."""
+    return np.einsum("nji,nj->ni", F0[:, :3, :3], T_world_flange[:3, 3] - F0[:, :3, 3])
+
+
 def _wrap(a):
     return (a + np.pi) % (2.0 * np.pi) - np.pi
 
@@ -148,7 +153,7 @@ class SphericalWristIK:
         ref = np.asarray(reference, dtype=float)
         n = len(rails)
         R06 = np.einsum("nji,jk->nik", F0[:, :3, :3], T_world_flange[:3, :3])  # R0^T R_w6
-        p = np.einsum("nji,nj->ni", F0[:, :3, :3], T_world_flange[:3, 3] - F0[:, :3, 3])
+        p = _in_frame0(F0, T_world_flange)
         q = np.full((n, 8, 7), np.nan)
         q[:, :, 0] = rails[:, None]
         valid = np.zeros((n, 8), dtype=bool)
@@ -235,7 +240,7 @@ class SphericalWristIK:
     def _rails_within_reach(self, T_flange):
         """The search grid's rail angles at which the wrist centre is within the arm's reach."""
         F0 = self._frame0_grid
-        p = np.einsum("nji,nj->ni", F0[:, :3, :3], T_flange[:3, 3] - F0[:, :3, 3])
+        p = _in_frame0(F0, T_flange)
         rho2 = p[:, 0] ** 2 + p[:, 1] ** 2 - self.d3 ** 2
         D = (rho2 + p[:, 2] ** 2 - self.a2 ** 2 - self.L ** 2) / (2.0 * self.a2 * self.L)
         return self.rail_grid[(rho2 >= 0.0) & (np.abs(D) <= 1.0)]
@@ -247,7 +252,7 @@ class SphericalWristIK:
 
     def _why(self, T_flange, rail, free_rail) -> str:
         F0 = self._frame0_grid if free_rail else np.array([self.frame0(rail)])
-        p = np.einsum("nji,nj->ni", F0[:, :3, :3], T_flange[:3, 3] - F0[:, :3, 3])
+        p = _in_frame0(F0, T_flange)
         r = np.linalg.norm(p, axis=1)
         reach = float(np.hypot(self.d3, self.a2 + self.L))
         where = "at any rail angle" if free_rail else f"at rail {np.rad2deg(rail):.1f} deg"

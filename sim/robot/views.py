@@ -8,6 +8,7 @@ import math
 import mujoco
 import numpy as np
 
+from artrecon.geometry import rotation_angle
 from sim.robot.closed_form import Unreachable
 from sim.robot.kinematics import (
     IK_ACCEPT_POSITION,
@@ -104,8 +105,7 @@ def _closed_form_view(kin: ArmKinematics, T: np.ndarray, start: np.ndarray) -> I
                         rotation_error=math.inf, reason=q.reason)
     T_q = kin.camera_pose(q)
     p_err = float(np.linalg.norm(T_q[:3, 3] - T[:3, 3]))
-    cos = np.clip((np.trace(T_q[:3, :3].T @ T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
-    r_err = float(np.arccos(cos))
+    r_err = rotation_angle(T_q[:3, :3].T @ T[:3, :3])
     return IKResult(q=q, success=bool(p_err < IK_ACCEPT_POSITION and r_err < IK_ACCEPT_ROTATION),
                     position_error=p_err, rotation_error=r_err)
 
