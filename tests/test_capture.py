@@ -414,7 +414,7 @@ def test_planner_moves_a_ring_the_arm_cannot_reach_at_the_preferred_fill():
     K, (w, h) = mujoco_camera_intrinsics(sc.model, kin.spec.prefix + kin.spec.camera)
     cfg = views.ViewPlanConfig(views_per_ring=8, elevations_deg=(), top_elevations_deg=(85.0,),
                                fill=0.55)
-    plan = views.plan_capture(sc.model, data, kin, K, w, h, cfg)
+    plan = views.plan_capture(sc.model, data, kin, K, w, h, cfg, cell=views.KnownCell(sc.path))
     (ring,) = plan.rings
     assert len(plan.views) == ring.n_views and not plan.unreachable
     assert ring.candidates_tried > 1
@@ -427,11 +427,13 @@ def test_planner_moves_a_ring_the_arm_cannot_reach_at_the_preferred_fill():
         n_views=ring.n_views, azimuth0=ring.azimuth0, top=True))
     preferred = views.order_for_rail(preferred, kin)
     probe = preferred[:: max(1, len(preferred) // cfg.probe_views)]
-    views.solve_views(sc.model, data, kin, probe, seed=cfg.seed,
+    # in the cell the plan was made in (the survey's hull for the object)
+    known = views.KnownCell(sc.path, np.array(plan.survey["hull_vertices"])).at(data.qpos)
+    views.solve_views(known.model, known.data, kin, probe, seed=cfg.seed,
                       restarts=cfg.probe_ik_restarts, stop_at_first_failure=True)
     if all(v.reachable for v in probe):
-        views.solve_views(sc.model, data, kin, preferred, seed=cfg.seed)
-        views.check_paths(sc.model, data, kin, preferred)
+        views.solve_views(known.model, known.data, kin, preferred, seed=cfg.seed)
+        views.check_paths(known.model, known.data, kin, preferred)
     assert any(not v.reachable for v in preferred)
 
 
@@ -556,7 +558,7 @@ def test_every_planned_view_of_the_bundled_scenes_is_reachable(scene, config):
     kin = robot.load_arm_kinematics(model)
     K, (w, h) = mujoco_camera_intrinsics(model, kin.spec.prefix + kin.spec.camera)
     cfg = views.ViewPlanConfig(views_per_ring=PLAN_VIEWS)
-    plan = views.plan_capture(model, data, kin, K, w, h, cfg)
+    plan = views.plan_capture(model, data, kin, K, w, h, cfg, cell=views.KnownCell(sc.path))
     bad = [(v.ring, round(np.rad2deg(v.azimuth)), v.reason) for v in plan.views
            if not v.reachable]
     assert not bad, f"{len(bad)} of {len(plan.views)} views unreachable: {bad[:3]}"
@@ -573,7 +575,8 @@ def test_every_planned_view_of_the_bundled_scenes_is_reachable(scene, config):
     links = views.arm_link_bodies(model, kin)
     qidx = robot.qpos_indices(model, kin)
     for v in plan.views:
-        # collision-free (table, object, floor and the arm itself) ...
+        # collision-free in the true world (table, object, floor and the arm itself), though
+        # planned with the survey's hull for the object ...
         data.qpos[qidx] = v.q
         mujoco.mj_forward(model, data)
         assert not views.arm_collisions(model, data, links)
@@ -581,7 +584,7 @@ def test_every_planned_view_of_the_bundled_scenes_is_reachable(scene, config):
         T = kin.camera_pose(v.q)
         np.testing.assert_allclose(T, v.T_world_camera, atol=1e-3)
         np.testing.assert_allclose(T[:3, 3] + v.distance * T[:3, 2], plan.centre, atol=1e-3)
-    # the moves between the views touch nothing either
+    # the moves between the views keep the clearance from the true object too
     again = [views.View(**{**v.__dict__}) for v in plan.views]
     views.check_paths(model, data, kin, again)
     assert all(v.reachable for v in again)

@@ -151,7 +151,9 @@ def capture_set(tmp_path):
     (folder / "cameras.json").write_text(json.dumps({"images": [
         {"file": "000.png", "q": [0.1] * 7}]}))
     (folder / "capture.json").write_text(json.dumps({"object_sphere": {
-        "centre": [0.01, 0.02, 0.5], "radius": 0.12, "survey": None}}))
+        "centre": [0.01, 0.02, 0.5], "radius": 0.12,
+        "survey": {"hull_vertices": [[0.0, 0.0, 0.45], [0.1, 0.0, 0.45], [0.0, 0.1, 0.45],
+                                     [0.0, 0.0, 0.55]]}}}))
     return folder
 
 
@@ -174,8 +176,10 @@ def test_the_fresh_view_gets_the_evaluations_settings(pliers, capture_set, tmp_p
     assert seen["capture_config"].fresh_elevation_deg == 45.0
     assert seen["plan_config"] == ViewPlanConfig(views_per_ring=18, seed=3, clearance_m=0.02)
     assert seen["seed"] == 3 and seen["q_start"] == [0.1] * 7
-    # it looks where the capture's survey found the object (issue 21), not at the truth
-    assert seen["target"] == ([0.01, 0.02, 0.5], 0.12)
+    # it looks where the capture's survey found the object (issue 21), not at the truth, and
+    # keeps clear of the survey's hull
+    assert seen["target"] == ([0.01, 0.02, 0.5], 0.12, [[0.0, 0.0, 0.45], [0.1, 0.0, 0.45],
+                                                        [0.0, 0.1, 0.45], [0.0, 0.0, 0.55]])
 
 
 def test_the_captures_get_the_evaluations_settings(pliers, tmp_path, monkeypatch):

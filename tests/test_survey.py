@@ -10,6 +10,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+from scipy.spatial import ConvexHull
 
 from sim import views
 from sim.capture.rig import make_rig
@@ -45,7 +46,8 @@ def surveyed(request):
     rig = make_rig(*request.param)
     truth = views.object_bounding_sphere(rig.model, rig.data)  # scoring only
     q_before = rig.data.qpos.copy()
-    found = views.survey_object(rig.model, rig.data, rig.kin, rig.K, rig.width, rig.height)
+    found = views.survey_object(rig.model, rig.data, rig.kin, rig.K, rig.width, rig.height,
+                                cell=views.KnownCell(rig.scene.path))
     return rig, truth, found, q_before
 
 
@@ -66,14 +68,42 @@ def test_the_hull_holds_the_object(surveyed):
     assert np.all(v >= found.lower - voxel) and np.all(v <= found.upper + voxel)
 
 
+def test_the_known_hull_holds_the_object(surveyed):
+    """The convex hull the plan keeps its clearance from (Survey.hull) holds every vertex of
+    the object's drawn meshes, and the planning cell collides with it, not with the object."""
+    rig, _, found, _ = surveyed
+    hull = ConvexHull(found.hull)
+    v = _true_vertices(rig.model, rig.data)
+    outside = v @ hull.equations[:, :3].T + hull.equations[:, 3]
+    assert outside.max() <= 1e-6, f"a vertex {1e3 * outside.max():.2f} mm outside the hull"
+    cell = views.KnownCell(rig.scene.path, found.hull)
+    m = cell.model
+    obj = set(views.object_bodies(m))
+    for g in range(m.ngeom):
+        if int(m.geom_bodyid[g]) in obj:
+            assert m.geom_contype[g] == 0 and m.geom_conaffinity[g] == 0
+    hull_geom = m.geom(views.known.HULL_BODY)
+    assert hull_geom.contype[0] == 1 and hull_geom.conaffinity[0] == 1
+    # a ray down through the hull's top meets the hull geom at the hull's top
+    groups = np.zeros(6, np.uint8)
+    groups[views.known.COLLISION_GROUP] = 1
+    top = found.hull[np.argmax(found.hull[:, 2])]
+    centre = found.hull.mean(axis=0)
+    start = np.r_[centre[:2], top[2] + 0.5]
+    gid = np.zeros(1, np.int32)
+    dist = mujoco.mj_ray(m, cell.data, start, np.array([0.0, 0.0, -1.0]), groups, 1, -1, gid)
+    assert int(gid[0]) == hull_geom.id
+    assert found.lower[2] <= start[2] - dist <= top[2] + 1e-6
+
+
 def test_the_survey_leaves_the_arm_where_it_was(surveyed):
     rig, _, _, q_before = surveyed
     assert np.array_equal(rig.data.qpos, q_before)
 
 
 def test_the_plan_reads_no_geometry_of_the_object(monkeypatch):
-    """The view plan runs with the simulator's bounding sphere out of reach, and its rings look
-    at the survey's sphere."""
+    """The view plan runs with the simulator's bounding sphere out of reach, its rings look at
+    the survey's sphere, and it is the same plan with the object's collision geoms gone."""
     def forbidden(*_a, **_k):
         raise AssertionError("the object's true bounding sphere was read by a decision")
 
@@ -81,7 +111,20 @@ def test_the_plan_reads_no_geometry_of_the_object(monkeypatch):
         monkeypatch.setattr(mod, "object_bounding_sphere", forbidden)
     rig = make_rig("pliers", "a")
     cfg = views.ViewPlanConfig(views_per_ring=12, elevations_deg=(30.0,), top_elevations_deg=())
-    plan = views.plan_capture(rig.model, rig.data, rig.kin, rig.K, rig.width, rig.height, cfg)
+    plan = views.plan_capture(rig.model, rig.data, rig.kin, rig.K, rig.width, rig.height, cfg,
+                              cell=views.KnownCell(rig.scene.path))
+    # the object's collision geoms out of the world the plan is made in: the same plan (its
+    # checks ran in the known cell, the survey's hull standing for the object)
+    m = rig.model
+    obj = set(views.object_bodies(m))
+    for g in range(m.ngeom):
+        if int(m.geom_bodyid[g]) in obj:
+            m.geom_contype[g] = m.geom_conaffinity[g] = 0
+    again = views.plan_capture(m, rig.data, rig.kin, rig.K, rig.width, rig.height, cfg,
+                               cell=views.KnownCell(rig.scene.path))
+    assert [v.q is None for v in again.views] == [v.q is None for v in plan.views]
+    assert all(np.array_equal(a.q, b.q) for a, b in zip(again.views, plan.views, strict=True)
+               if a.q is not None)
     assert plan.survey is not None and plan.survey["radius"] == plan.radius
     assert np.allclose(plan.survey["centre"], plan.centre)
     assert all(np.allclose(v.T_world_camera[:3, 3] + v.distance * v.T_world_camera[:3, 2],
@@ -100,7 +143,8 @@ def test_an_empty_table_is_a_clear_error(monkeypatch):
     monkeypatch.setattr(survey_mod._Camera, "photograph", nothing_there)
     rig = make_rig("pliers", "a")
     with pytest.raises(views.SurveyError, match="is there an object on the table"):
-        views.survey_object(rig.model, rig.data, rig.kin, rig.K, rig.width, rig.height)
+        views.survey_object(rig.model, rig.data, rig.kin, rig.K, rig.width, rig.height,
+                            cell=views.KnownCell(rig.scene.path))
 
 
 def test_pixels_of_the_robots_own_body_carve_nothing():
@@ -166,3 +210,16 @@ def test_no_decision_reads_the_true_bounding_sphere():
             users.add(str(path.relative_to(ROOT)))
     assert users <= SPHERE_READERS, sorted(users - SPHERE_READERS)
     assert {"sim/views/rings.py", "sim/capture/image_set.py"} <= users
+
+
+def test_a_sphere_alone_is_held_by_the_fresh_views_obstacle():
+    """Without the survey's hull the fresh view keeps clear of the target's sphere: the
+    polyhedron standing for it holds the whole sphere, and is not much larger."""
+    from sim.capture.fresh import _sphere_hull
+
+    centre, radius = np.array([0.1, -0.2, 0.6]), 0.15
+    hull = ConvexHull(_sphere_hull(centre, radius))
+    d = np.random.default_rng(0).normal(size=(20000, 3))
+    on_sphere = centre + radius * d / np.linalg.norm(d, axis=1, keepdims=True)
+    assert (on_sphere @ hull.equations[:, :3].T + hull.equations[:, 3]).max() <= 0.0
+    assert hull.volume <= 1.25 * 4.0 / 3.0 * np.pi * radius ** 3

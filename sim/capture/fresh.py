@@ -42,9 +42,10 @@ def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.
     """One more image after the capture, from an arm pose that neither image set holds.
 
     The arm starts at ``q_start`` (where the capture left it), plans a view of ``target``
-    (``(centre, radius)`` of the object's sphere as the robot knows it: the capture's survey,
-    capture.json's ``object_sphere``; None: the arm surveys the table again,
-    :func:`sim.views.survey_object`) at
+    (``(centre, radius)`` of the object's sphere as the robot knows it, optionally with the
+    vertices of the survey's hull as a third item: the capture's survey, capture.json's
+    ``object_sphere``; None: the arm surveys the table again, :func:`sim.views.survey_object`)
+    at
     ``capture_config.fresh_elevation_deg`` half a capture step off its current azimuth (the
     other ``fresh_azimuth_offsets_deg`` when that one is out of reach), at the distance where the
     object fills ``fill`` of the image, moves there in physics along a checked line and
@@ -53,7 +54,9 @@ def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.
     layout is not read), IK restarts seeded with ``seed``. Writes ``out_dir/fresh.png``,
     ``out_dir/pose.json`` (joint angles, flange and camera pose from forward kinematics: what
     the robot knows) and ``out_dir/ground_truth.json`` (the true camera pose, scoring only),
-    whole or not at all.
+    whole or not at all. The view and its path are checked in the cell as the robot knows it
+    (:class:`sim.views.KnownCell`): the survey's hull, or without one the target's sphere,
+    stands for the object.
 
     Raises
     ------
@@ -67,10 +70,15 @@ def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.
     q_start = np.asarray(q_start, dtype=float)
     data.qpos[robot.qpos_indices(model, kin)] = q_start
     mujoco.mj_forward(model, data)
+    cell = views.KnownCell(sc.path)
     if target is None:
-        survey = views.survey_object(model, data, kin, K, width, height, plan_config)
-        target = survey.centre, survey.radius
+        survey = views.survey_object(model, data, kin, K, width, height, plan_config,
+                                     cell=cell)
+        target = survey.centre, survey.radius, survey.hull
     centre, radius = np.asarray(target[0], dtype=float), float(target[1])
+    hull = target[2] if len(target) > 2 and target[2] is not None else _sphere_hull(centre,
+                                                                                     radius)
+    known = cell.with_hull(np.asarray(hull, dtype=float)).at(data.qpos)
     distance = views.ring_distance(radius, K, width, height, fill,
                                    plan_config.min_ring_distance)
     eye = kin.camera_pose(q_start)[:3, 3] - centre
@@ -83,10 +91,11 @@ def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.
         pos = centre + distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az),
                                             np.sin(el)])
         view = views.View(k, 0, az, el, distance, robot.look_at_pose(pos, centre))
-        views.solve_views(model, data, kin, [view], seed=seed, q_start=q_start,
+        views.solve_views(known.model, known.data, kin, [view], seed=seed, q_start=q_start,
                           config=plan_config)
         if view.reachable:
-            views.check_paths(model, data, kin, [view], q_start=q_start, config=plan_config)
+            views.check_paths(known.model, known.data, kin, [view], q_start=q_start,
+                              config=plan_config)
         if view.reachable:
             chosen = view
             break
@@ -120,3 +129,17 @@ def capture_fresh_view(scene, config: str, q_start, out_dir, *, fill: float = 0.
             {"T_world_camera": as_list(T_true)}, indent=2) + "\n")
         os.replace(tmp, out_dir)  # never over a folder made since the check: not publish_dir()
     return FreshView(out_dir / "fresh.png", out_dir / "pose.json", q, T_flange, T_true)
+
+
+def _sphere_hull(centre: np.ndarray, radius: float, n: int = 200) -> np.ndarray:
+    """Vertices of a polyhedron holding the sphere (``n`` points on a Fibonacci sphere, pushed
+    out so that the polyhedron's faces clear the sphere): the object when only its sphere is
+    known."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    phi = np.pi * (1.0 + 5.0 ** 0.5) * k
+    r = np.sqrt(1.0 - z * z)
+    unit = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+    # neighbouring points are ~sqrt(4 pi / n) rad apart: a face's centre lies within that angle
+    # of its corners, so corners at radius / cos(that angle) keep every face outside the sphere
+    return centre + unit * radius / np.cos(np.sqrt(4.0 * np.pi / n))

@@ -156,7 +156,8 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
     bar = tqdm(total=2 * expected, desc=f"capture {sc.name}/{config}", unit="view",
                disable=not progress)
     plan, plan_cached = plan_views(model, data, kin, K, width, height, plan_cfg,
-                                   cache_dir=plan_cache, stage=f"plan_{config}", progress=bar)
+                                   cell=views.KnownCell(sc.path), cache_dir=plan_cache,
+                                   stage=f"plan_{config}", progress=bar)
     t_plan = time.perf_counter()
     plan_cpu = time.thread_time() - main_start
     log.info("%s config %s: %d views on %d rings around the object (radius %.3f m): %s", sc.name,

@@ -58,7 +58,8 @@ def plan_inputs(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinema
 
 def plan_views(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinematics,
                K: np.ndarray, width: int, height: int, config: views.ViewPlanConfig, *,
-               cache_dir=None, stage: str = "plan", progress=None) -> tuple[views.ViewPlan, bool]:
+               cell: views.KnownCell, cache_dir=None, stage: str = "plan",
+               progress=None) -> tuple[views.ViewPlan, bool]:
     """:func:`sim.views.plan_capture`, or the same plan read from ``cache_dir``.
 
     With ``cache_dir``, the plan is a stage of :func:`sim.cache.cached_stage` keyed by
@@ -76,11 +77,12 @@ def plan_views(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinemat
     """
     if cache_dir is None:
         return views.plan_capture(model, data, kin, K, width, height, config,
-                                  progress=progress), False
+                                  progress=progress, cell=cell), False
     solved = []
 
     def build(folder: Path) -> dict:
-        plan = views.plan_capture(model, data, kin, K, width, height, config, progress=progress)
+        plan = views.plan_capture(model, data, kin, K, width, height, config, progress=progress,
+                                  cell=cell)
         (folder / PLAN_FILE).write_text(json.dumps(views.plan_to_json(plan)) + "\n")
         solved.append(plan)
         return {"views": len(plan.views), "reachable": len(plan.reachable)}

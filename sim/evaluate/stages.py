@@ -350,7 +350,8 @@ def fresh_view_stage(scene: Scene, capture_set: Path, capture_key: str, ev: Eval
                                 folder / "fresh", seed=ev.seed,
                                 capture_config=ev.capture_settings.capture,
                                 plan_config=ev.view_plan(),
-                                target=(sphere["centre"], sphere["radius"]))
+                                target=(sphere["centre"], sphere["radius"],
+                                        (sphere.get("survey") or {}).get("hull_vertices")))
         perturb.perturb_fresh_pose(fv.pose_file, scene, ev.perturb, ev.seed)
         return {"q": fv.q.tolist()}  # the arm's configuration now: the manipulation's start
 

@@ -7,8 +7,9 @@ of view, the band of camera distances at which the object fills a good share of 
 (:attr:`ViewPlanConfig.fill_range`). Every view looks at the sphere's
 centre; each is solved with the arm's inverse kinematics (rail and arm together, joint limits
 respected, :func:`sim.robot.solve_view_ik`: in closed form for the PUMA) and checked for
-collisions of the arm links in MuJoCo (contacts after ``mj_forward``: with the table, the
-object, the floor and the arm itself).
+collisions of the arm links in MuJoCo, in the cell as the robot knows it
+(:class:`sim.views.known.KnownCell`: the table, the floor, the arm itself and, for the object,
+the convex hull of the survey's visual hull; never the object's own geoms).
 
 :func:`plan_capture` chooses each ring before committing to it: the distance in the band nearest
 the preferred fill and, only if no distance gives a ring the arm reaches everywhere without a
@@ -28,6 +29,7 @@ import mujoco
 import numpy as np
 
 from sim import robot
+from sim.views.known import KnownCell
 from sim.views.records import ELEVATION_LIMITS_DEG, Ring, View, ViewPlan, ViewPlanConfig
 from sim.views.rings import (
     fill_at_distance,
@@ -73,7 +75,8 @@ def candidates(config: ViewPlanConfig, desired_deg: float, radius: float, K, wid
 
 def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinematics,
                  K: np.ndarray, width: int, height: int, config: ViewPlanConfig, *,
-                 progress=None, survey_config: SurveyConfig = SurveyConfig()) -> ViewPlan:
+                 progress=None, survey_config: SurveyConfig = SurveyConfig(),
+                 cell: KnownCell) -> ViewPlan:
     """Choose every ring so that the arm reaches all its views without a collision, and solve them.
 
     For each ring (full rings, then top rings) the candidates of :func:`candidates` are tried in
@@ -96,14 +99,22 @@ def plan_capture(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinem
         ``update(n)`` with the views of each ring once it is chosen.
     survey_config : sim.views.survey.SurveyConfig
         How the survey looks for the object before the rings are planned.
+    cell : sim.views.known.KnownCell
+        The scene file compiled for planning (without the object): the survey's and the rings'
+        IK and clearance are checked there, the rings' with the survey's hull added.
+        ``model`` and ``data`` only take the survey's photographs.
 
     Returns
     -------
     ViewPlan
         Rings and views in capture order (ring by ring, each swept in one rail direction).
     """
-    survey = survey_object(model, data, kin, K, width, height, config, survey_config)
+    survey = survey_object(model, data, kin, K, width, height, config, survey_config,
+                           cell=cell)
     centre, radius = survey.centre, survey.radius
+    # the object as the robot knows it: the hull the survey carved, not the object's geoms
+    known = cell.with_hull(survey.hull).at(data.qpos)
+    model, data = known.model, known.data
     lowest = min((*config.elevations_deg, *config.top_elevations_deg))
     highest = max((*config.elevations_deg, *config.top_elevations_deg))
     lowest = max(ELEVATION_LIMITS_DEG[0], lowest - config.max_elevation_shift_deg)

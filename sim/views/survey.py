@@ -11,7 +11,11 @@ bounding sphere is the sphere the capture plans with.
 
 The simulator's part is only to make the photographs: the plate is the same scene rendered with
 the object's geoms moved out of sight, as the empty table would have been photographed. No
-decision reads the object's geometry.
+decision reads the object's geometry: the survey's views are reached and checked in a
+:class:`~sim.views.known.KnownCell` (the first pass's against the stage and the arm only, the
+second's against the first pass's hull as well), and the survey's result holds the hull's convex
+hull (:attr:`Survey.hull`), which the capture's rings keep their clearance from. A survey pose at
+which the arm would touch the true object is reported (:class:`SurveyError`), not avoided.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ import numpy as np
 from sim import robot
 from sim.camera import true_camera_pose
 from sim.views.clearance import robot_bodies
+from sim.views.known import KnownCell, hull_vertices, object_contacts
 from sim.views.records import View, ViewPlanConfig
 from sim.views.rings import object_bodies, ring_distance
 from sim.views.solve import solve_views
@@ -100,11 +105,15 @@ class Survey:
     """views photographed"""
     q: list = field(default_factory=list)
     """the arm's joint angles at each view"""
+    hull: np.ndarray = field(default_factory=lambda: np.empty((0, 3)))
+    """(k, 3) vertices of the convex hull of the visual hull's voxels (world, m): the object as
+    the robot knows it when it plans (:class:`~sim.views.known.KnownCell`)"""
 
     def to_json(self) -> dict:
         return {"centre": [float(x) for x in self.centre], "radius": float(self.radius),
                 "lower": [float(x) for x in self.lower], "upper": [float(x) for x in self.upper],
                 "voxels": int(self.voxels), "views": int(self.views),
+                "hull_vertices": np.round(self.hull, 6).tolist(),
                 "method": "visual hull of the survey's silhouettes against the empty cell"}
 
 
@@ -244,7 +253,7 @@ class _Camera:
 def survey_object(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKinematics,
                   K: np.ndarray, width: int, height: int,
                   plan_config: ViewPlanConfig = ViewPlanConfig(),
-                  config: SurveyConfig = SurveyConfig()) -> Survey:
+                  config: SurveyConfig = SurveyConfig(), *, cell: KnownCell) -> Survey:
     """Photograph the object from the survey's views and carve its visual hull.
 
     Two passes. The first looks at :attr:`SurveyConfig.aim_height` above the table top's centre
@@ -254,30 +263,43 @@ def survey_object(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKine
     centre from :attr:`SurveyConfig.frame_elevations_deg` (a low one bounds the height), at the
     distance where the first hull's sphere fills :attr:`SurveyConfig.frame_fill` of the image or
     the farthest the arm reaches short of it, and both passes' silhouettes carve the first hull's
-    box again. IK and clearance are ``plan_config``'s (its seed and probe restarts);
-    unreachable views are skipped. The arm's joints in ``data`` are restored.
+    box again. IK and clearance are ``plan_config``'s (its seed and probe restarts), checked in
+    ``cell`` (the scene as the robot knows it, :class:`~sim.views.known.KnownCell`: without the
+    object for the first pass, with the first pass's hull for the second); unreachable views
+    are skipped. ``model`` and ``data`` (the simulated world) only take the photographs, and
+    say whether a chosen pose touches the object (a :class:`SurveyError`). The arm's joints in
+    ``data`` are restored.
 
     Raises
     ------
     SurveyError
         Fewer than :attr:`SurveyConfig.min_views` views reachable, no object in the
-        photographs, or a hull that reaches the edge of the carved volume.
+        photographs, a hull that reaches the edge of the carved volume, or a survey pose at
+        which the arm touches the object.
     """
     K = np.asarray(K, dtype=float)
     top, table_radius = table_top(model, data)
     saved = data.qpos.copy()
     masks, cameras = [], []
+    cell = cell.at(saved)
     try:
         camera = _Camera(model, data, kin, K, width, height)
 
         def photograph(views_):
             for view in views_:
+                hits = object_contacts(model, data, kin, view.q)
+                if hits:
+                    raise SurveyError(
+                        f"at survey view {view.index} the arm touches the object "
+                        f"({', '.join(hits[:3])}): the object stands where the survey's first "
+                        "views pass (the robot does not know it yet); put it nearer the "
+                        "table's centre")
                 color, plate, own = camera.photograph(view.q)
                 masks.append(_silhouette(color, plate, own, config))
                 cameras.append(kin.camera_pose(view.q))  # what the robot knows of the pose
 
         aim = top + np.array([0.0, 0.0, config.aim_height])
-        first = _reach_views(model, data, kin, aim, config.elevations_deg,
+        first = _reach_views(cell.model, cell.data, kin, aim, config.elevations_deg,
                              config.views_per_elevation, config.distances, plan_config, 0,
                              None)
         if len(first) < config.min_views:
@@ -303,7 +325,9 @@ def survey_object(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKine
                                 plan_config.min_ring_distance)
         distances = [d for d in np.arange(d_frame, config.frame_min_distance - 1e-9,
                                           -config.frame_distance_step)]
-        second = _reach_views(model, data, kin, centre1, config.frame_elevations_deg,
+        framing = cell.with_hull(hull_vertices(pts, config.coarse_voxel)).at(saved)
+        second = _reach_views(framing.model, framing.data, kin, centre1,
+                              config.frame_elevations_deg,
                               config.views_per_elevation, distances or [d_frame], plan_config,
                               len(first), first[-1].q)
         photograph(second)
@@ -336,7 +360,8 @@ def survey_object(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKine
     log.info("survey: %d + %d views, hull of %d voxels, centre %s, radius %.3f m", len(first),
              len(second), len(pts), np.round(centre, 3), radius)
     return Survey(centre=centre, radius=radius, lower=lower_h, upper=upper_h, voxels=len(pts),
-                  views=len(masks), q=[v.q.copy() for v in (*first, *second)])
+                  views=len(masks), q=[v.q.copy() for v in (*first, *second)],
+                  hull=hull_vertices(pts, config.voxel))
 
 
 def _sphere(pts: np.ndarray, voxel: float, corner: float = 1.0) -> tuple[np.ndarray, float]:
