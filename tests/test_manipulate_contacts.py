@@ -110,6 +110,44 @@ def test_a_gripper_plunging_into_the_grasped_link_is_refused(world):
                                   grasp_normal=up) == []
 
 
+@pytest.mark.parametrize("height", [0.0, 0.015])
+def test_a_part_standing_proud_of_the_grasped_face_is_an_obstacle(world, height):
+    """A post 3 cm square grasped on its top, and one more sphere of the same link beside a
+    PUMA finger at the grasp pose, grazing the finger's side 1 mm deep: on the face (height 0,
+    a sphere of the top the finger passes over) the graze is allowed, as the fingers graze their
+    face; standing 1.5 cm out of the face (a handle beside the grasp point: cabinet seed 2,
+    where the fingers came down on the drawer's handle and stopped 5 mm short of the grasp) it
+    is a collision, and allowed only with an unbounded ``face_height``."""
+    top = 0.45 + 0.08
+    pts, nrm = box_faces(np.array([0.0, 0.0, top - 0.04]), np.array([0.015, 0.015, 0.04]),
+                         step=0.003)
+    grasp, up = np.array([0.0, 0.0, top]), np.array([0.0, 0.0, 1.0])
+    q0 = fresh_data(world).qpos[world.qidx]
+    cfg = PlanningConfig()
+    ik = world.kin.solve_ik(grasp_frame(grasp, up, 0.0, cfg.grasp_standoff), "grasp", q0,
+                            seed=0)
+    assert ik.success
+    p, R, half = _finger_pose(PlanningWorld.from_scene(world), ik.q)
+    side = np.argmin(np.abs(R.T @ np.array([p[0], p[1], 0.0])) / half)  # any side axis
+    side = 0 if side == 2 else side
+    out = np.sign(R[:, side] @ np.r_[p[:2], 0.0]) * R[:, side]  # away from the post's axis
+    sphere = p + out * (half[side] + cfg.sphere_radius - 0.001)
+    sphere[2] = top + height
+    assert np.linalg.norm(sphere - grasp) < cfg.face_contact_radius
+
+    def contacts(config):
+        pw = PlanningWorld.from_model(world, _model(np.r_[pts, [sphere, sphere]],
+                                                    np.r_[nrm, [up, up]]), config)
+        return pw.arm_contacts(ik.q, grasp_point=grasp, grasp_links={0}, grasp_normal=up)
+
+    if height == 0.0:
+        assert contacts(cfg) == []
+    else:
+        hits = contacts(cfg)
+        assert hits and all("model link 0" in h for h in hits)
+        assert contacts(PlanningConfig(face_height=np.inf)) == []
+
+
 def test_an_obstacle_on_the_approach_line_rejects_the_candidate(world):
     """A post 3 cm square grasped on its top (the model's link 0, which a slide moves), and a
     model sphere of another link (two points) in the column one of the PUMA's fingers sweeps

@@ -79,6 +79,13 @@ class PlanningConfig:
     a flat face every grasp met the face's own spheres beyond 3 cm (the truck's bed side
     planned on its true surfaces: 40 candidates refused for it); any other contact of the arm
     is a collision (a finger against the side of a handle goes deeper)"""
+    face_height: float = 0.005
+    """... both only for spheres on the grasped face: their centres (the mean of a voxel's
+    points, on the surface) at most this far (m) out of it along the grasp normal. A part of
+    the grasped link standing proud of the face near the grasp point is an obstacle: the
+    fingers stop on it (cabinet seed 2: the grasp point 3 mm above the drawer's handle, which
+    stands 1.3-2.5 cm out of the front; both contact allowances let the fingers come down onto
+    the handle's spheres, and in physics they stopped 5 mm short of the grasp pose)"""
     approach_radius: float = 0.025
     """free space in front of a candidate: rays along the normal from the point and from four
     points this far (m) around it (the fingertips sit 3 cm off the approach axis) ..."""

@@ -211,9 +211,14 @@ class PlanningWorld:
         ``gripper_contact_radius`` of the grasp point and no deeper than
         ``gripper_contact_depth``, or (``grasp_normal`` given) grazed by the fingertips on the
         grasped face (:attr:`PlanningConfig.face_contact_radius`, ``face_contact_depth``): the
-        fingertips stop 3 mm short of the surface and the spheres stand 4 mm out of it."""
+        fingertips stop 3 mm short of the surface and the spheres stand 4 mm out of it. With
+        ``grasp_normal``, either only for a sphere on the grasped face, no more than
+        :attr:`PlanningConfig.face_height` out of it (a handle beside the grasp point is not)."""
         cfg = self.config
-        dist = float(np.linalg.norm(np.asarray(p, float) - grasp_point))
+        offset = np.asarray(p, float) - grasp_point
+        if grasp_normal is not None and float(offset @ grasp_normal) > cfg.face_height:
+            return False
+        dist = float(np.linalg.norm(offset))
         if dist < cfg.gripper_contact_radius and contact_dist > -cfg.gripper_contact_depth:
             return True
         return bool(grasp_normal is not None and dist < cfg.face_contact_radius
