@@ -39,6 +39,26 @@ def _model(points, normals=None) -> ArticulatedModel:
     return ArticulatedModel(links=[link], joints=[], scale_known=True)
 
 
+#: Top of the post the grasp tests grasp (m): 8 cm above the table top.
+POST_TOP = 0.45 + 0.08
+
+
+def _post():
+    """A post 3 cm square and 8 cm tall on the table (surface points and normals), its top's
+    centre (the grasp point) and the top's normal."""
+    pts, nrm = box_faces(np.array([0.0, 0.0, POST_TOP - 0.04]), np.array([0.015, 0.015, 0.04]),
+                         step=0.003)
+    return pts, nrm, np.array([0.0, 0.0, POST_TOP]), np.array([0.0, 0.0, 1.0])
+
+
+def _grasp_q(world, grasp, normal, standoff):
+    """The arm's joints with the grasp frame ``standoff`` off ``grasp`` along ``normal``."""
+    ik = world.kin.solve_ik(grasp_frame(grasp, normal, 0.0, standoff), "grasp",
+                            fresh_data(world).qpos[world.qidx], seed=0)
+    assert ik.success
+    return ik.q
+
+
 def _finger_pose(pw: PlanningWorld, q):
     """Position, orientation and half-size of one of the PUMA's finger boxes at ``q``."""
     m, d = pw.model, pw.data
@@ -83,20 +103,11 @@ def test_a_gripper_plunging_into_the_grasped_link_is_refused(world):
     straddle it and touch nothing; pushed 7 cm further down the palm sinks into the post's top,
     every contact within ``gripper_contact_radius`` of the grasp point (where any depth was
     allowed): refused, and allowed again only with an unbounded ``gripper_contact_depth``."""
-    top = 0.45 + 0.08
-    pts, nrm = box_faces(np.array([0.0, 0.0, top - 0.04]), np.array([0.015, 0.015, 0.04]),
-                           step=0.003)
-    grasp, up = np.array([0.0, 0.0, top]), np.array([0.0, 0.0, 1.0])
-    q0 = fresh_data(world).qpos[world.qidx]
+    pts, nrm, grasp, up = _post()
     cfg = PlanningConfig()
-
-    def q_at(standoff):
-        ik = world.kin.solve_ik(grasp_frame(grasp, up, 0.0, standoff), "grasp", q0, seed=0)
-        assert ik.success
-        return ik.q
-
     pw = PlanningWorld.from_model(world, _model(pts, nrm))
-    held, plunged = q_at(cfg.grasp_standoff), q_at(cfg.grasp_standoff - 0.07)
+    held = _grasp_q(world, grasp, up, cfg.grasp_standoff)
+    plunged = _grasp_q(world, grasp, up, cfg.grasp_standoff - 0.07)
     assert pw.arm_contacts(held, grasp_point=grasp, grasp_links={0}, grasp_normal=up) == []
     hits = pw.arm_contacts(plunged, grasp_point=grasp, grasp_links={0}, grasp_normal=up)
     assert hits and all("model link 0" in h for h in hits)
@@ -118,27 +129,21 @@ def test_a_part_standing_proud_of_the_grasped_face_is_an_obstacle(world, height)
     face; standing 1.5 cm out of the face (a handle beside the grasp point: cabinet seed 2,
     where the fingers came down on the drawer's handle and stopped 5 mm short of the grasp) it
     is a collision, and allowed only with an unbounded ``face_height``."""
-    top = 0.45 + 0.08
-    pts, nrm = box_faces(np.array([0.0, 0.0, top - 0.04]), np.array([0.015, 0.015, 0.04]),
-                         step=0.003)
-    grasp, up = np.array([0.0, 0.0, top]), np.array([0.0, 0.0, 1.0])
-    q0 = fresh_data(world).qpos[world.qidx]
+    pts, nrm, grasp, up = _post()
     cfg = PlanningConfig()
-    ik = world.kin.solve_ik(grasp_frame(grasp, up, 0.0, cfg.grasp_standoff), "grasp", q0,
-                            seed=0)
-    assert ik.success
-    p, R, half = _finger_pose(PlanningWorld.from_scene(world), ik.q)
+    q = _grasp_q(world, grasp, up, cfg.grasp_standoff)
+    p, R, half = _finger_pose(PlanningWorld.from_scene(world), q)
     side = np.argmin(np.abs(R.T @ np.array([p[0], p[1], 0.0])) / half)  # any side axis
     side = 0 if side == 2 else side
     out = np.sign(R[:, side] @ np.r_[p[:2], 0.0]) * R[:, side]  # away from the post's axis
     sphere = p + out * (half[side] + cfg.sphere_radius - 0.001)
-    sphere[2] = top + height
+    sphere[2] = POST_TOP + height
     assert np.linalg.norm(sphere - grasp) < cfg.face_contact_radius
 
     def contacts(config):
         pw = PlanningWorld.from_model(world, _model(np.r_[pts, [sphere, sphere]],
                                                     np.r_[nrm, [up, up]]), config)
-        return pw.arm_contacts(ik.q, grasp_point=grasp, grasp_links={0}, grasp_normal=up)
+        return pw.arm_contacts(q, grasp_point=grasp, grasp_links={0}, grasp_normal=up)
 
     if height == 0.0:
         assert contacts(cfg) == []
@@ -157,14 +162,11 @@ def test_an_obstacle_on_the_approach_line_rejects_the_candidate(world):
     the candidate is rejected for its approach; without the obstacle the same candidate is
     planned, the fingertips stopping 3 mm short of the post's own top (allowed, as at the grasp
     pose)."""
-    top = 0.45 + 0.08
-    pts, nrm = box_faces(np.array([0.0, 0.0, top - 0.04]), np.array([0.015, 0.015, 0.04]),
-                         step=0.003)
-    grasp, up = np.array([0.0, 0.0, top]), np.array([0.0, 0.0, 1.0])
+    pts, nrm, grasp, up = _post()
     est = JointEstimate("prismatic", np.array([1.0, 0.0, 0.0]), grasp)
     cand = GraspCandidate(grasp, up)
     q0 = fresh_data(world).qpos[world.qidx]
-    obstacle = np.array([0.0, 0.04, top + 0.1])  # beside the post's axis, 10 cm above its top
+    obstacle = np.array([0.0, 0.04, POST_TOP + 0.1])  # beside the post's axis, 10 cm above its top
     margin = PlanningConfig().travel_clearance
 
     def world_with(obstacle, clearance=margin):

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from sim import robot
-from sim.views.clearance import arm_link_bodies
+from sim.views.clearance import _geom_name, arm_link_bodies
 from sim.views.rings import object_bodies
 
 #: Name of the body (and its geom) standing for the object in a :class:`KnownCell`.
@@ -107,12 +107,10 @@ def object_contacts(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKi
         obj = set(object_bodies(model))
         n = data.ncon
         out = []
-        for pair, dist in zip(data.contact.geom[:n], data.contact.dist[:n], strict=True):
-            b = {int(model.geom_bodyid[pair[0]]), int(model.geom_bodyid[pair[1]])}
-            if b & links and b & obj and dist < 0:
-                out.append("/".join(sorted(
-                    mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, int(g)) or f"geom{int(g)}"
-                    for g in pair)))
+        for g1, g2 in data.contact.geom[:n][data.contact.dist[:n] < 0]:
+            b = {int(model.geom_bodyid[g1]), int(model.geom_bodyid[g2])}
+            if b & links and b & obj:
+                out.append(f"{_geom_name(model, int(g1))}/{_geom_name(model, int(g2))}")
         return sorted(set(out))
     finally:
         data.qpos[:] = saved

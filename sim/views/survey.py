@@ -291,9 +291,10 @@ def survey_object(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKine
                 if hits:
                     raise SurveyError(
                         f"at survey view {view.index} the arm touches the object "
-                        f"({', '.join(hits[:3])}): the object stands where the survey's first "
-                        "views pass (the robot does not know it yet); put it nearer the "
-                        "table's centre")
+                        f"({', '.join(hits[:3])}): the object reaches where the survey's views "
+                        "pass, beyond what the robot knew of it when it chose them (nothing "
+                        "for the first pass, the first pass's hull for the second); put it "
+                        "nearer the table's centre")
                 color, plate, own = camera.photograph(view.q)
                 masks.append(_silhouette(color, plate, own, config))
                 cameras.append(kin.camera_pose(view.q))  # what the robot knows of the pose
