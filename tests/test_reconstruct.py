@@ -103,14 +103,20 @@ def _match_share_correct(out, truth_a, truth_b, to_world_a, to_world_b):
     return float((np.linalg.norm(pred - B, axis=1) < 0.005).mean()), len(A)
 
 
-def _joint_errors(model, to_world_a, rotation_a):
+def _joint_errors(model, to_world_a, rotation_a, figures=None):
+    """Axis angle (deg), axis line distance (m) and joint angle error (deg) of the model's one
+    joint, or of ``figures`` (a refinement record's ``axis_direction``, ``axis_point``,
+    ``motion``), mapped to the world by ``to_world_a`` / ``rotation_a``."""
     assert len(model.links) == 2, f"expected 2 links, got {len(model.links)}"
     (j,) = model.joints
     assert j.type == "revolute"
+    f = figures or {"axis_direction": j.axis_direction, "axis_point": j.axis_point,
+                    "motion": j.motion}
+    direction = rotation_a @ np.asarray(f["axis_direction"], float)
     truth = rf.true_hinge()
-    ang, dist = axis_errors(rotation_a @ j.axis_direction, to_world_a(j.axis_point[None])[0],
+    ang, dist = axis_errors(direction, to_world_a(np.asarray(f["axis_point"], float)[None])[0],
                             truth["axis_direction"], truth["axis_point"])
-    signed = j.motion * np.sign(rotation_a @ j.axis_direction @ truth["axis_direction"])
+    signed = f["motion"] * np.sign(direction @ truth["axis_direction"])
     return ang, dist, abs(np.degrees(signed - truth["angle"]))
 
 
@@ -152,8 +158,15 @@ def test_whole_run_with_known_poses_recovers_the_hinge(rendered, reconstruction_
 def test_the_joints_are_refined_against_the_images_with_an_uncertainty_that_covers_the_error(
         route, request):
     """Both routes run the articulated bundle adjustment (artrecon.refine): its record says what
-    it did, and the joint kept lies within 3 sigma of the truth by the refinement's own
-    uncertainty (the photo route's in the SfM frame aligned to the truth)."""
+    it did, the joint kept is the initial one (``refine.adopt`` is off), and the refined figures
+    lie within 3 sigma of the truth by the refinement's own uncertainty.
+
+    That sigma holds the cameras fixed (the arm's poses, or SfM's own): on the photo route the
+    error is measured through the SfM frame's alignment to the truth, and the SfM cameras' own
+    error, which no sigma of the refinement holds, joins it in quadrature (below). The initial
+    joint is not held to the refinement's sigma: it is another estimate (CI at f579001 failed
+    that check at 0.0133 deg against 3 sigma of 0.0116 deg, on the initial joint; four local
+    runs of the photo route: initial 0.007-0.010 deg, refined 0.004-0.006 deg)."""
     model, out = request.getfixturevalue(f"reconstruction_{route}")
     summary = model.metadata["refinement"]
     assert summary["converged"] and summary["points"] > 50
@@ -161,30 +174,34 @@ def test_the_joints_are_refined_against_the_images_with_an_uncertainty_that_cove
     assert 0.02 <= summary["sigma_px"] < 1.0  # rendered images: a fraction of a pixel
     (j,) = model.joints
     rec = j.confidence["refinement"]
-    assert rec["verdict"].startswith(("kept the initial joint", "the axis moved")), rec
-    assert rec["refined"]["motion"] == pytest.approx(j.motion, abs=3 * rec["state"] + 1e-9)
+    assert rec["verdict"].startswith("kept the initial joint"), rec
+    np.testing.assert_allclose(j.axis_direction, rec["initial"]["axis_direction"], atol=1e-12)
+    np.testing.assert_allclose(j.axis_point, rec["initial"]["axis_point"], atol=1e-12)
     if route == "poses":
-        to_world, rot, scale, align = (lambda p: p), np.eye(3), 1.0, 0.0
+        to_world, rot, scale = (lambda p: p), np.eye(3), 1.0
+        align = align_deg = cameras = 0.0
     else:
         S, centre_err = align_to_truth(out / "a" / "sparse" / "0", rendered_a(request))
         to_world, rot, scale = S.apply, S.rotation, S.scale
-        # the error is measured through the SfM frame's alignment to the truth, whose own error
-        # the refinement's sigma does not hold: its standard error (the camera centres' RMS
-        # residual over the root of their number) joins in quadrature (CI at d04dad7: 0.052 mm
-        # against 3 sigma of 0.031 mm plus a fixed 0.010 mm, with the centres' residual unused)
+        # the alignment's standard error (the camera centres' RMS residual over the root of
+        # their number), and its rotation's: that over the ring's radius (degrees)
+        centres = rendered_a(request).T_world_camera[:, :3, 3]
+        ring = float(np.sqrt(np.mean(np.sum((centres - centres.mean(0)) ** 2, axis=1))))
         align = float(np.sqrt(np.mean(centre_err ** 2) / len(centre_err)))
-    # ... and its rotation's, that standard error over the ring's radius (degrees)
-    ring = 0.0 if route == "poses" else float(np.sqrt(np.mean(np.sum(
-        (rendered_a(request).T_world_camera[:, :3, 3]
-         - rendered_a(request).T_world_camera[:, :3, 3].mean(0)) ** 2, axis=1))))
-    align_deg = float(np.degrees(align / ring)) if ring > 0 else 0.0
-    ang, dist, dq = _joint_errors(model, to_world, rot)
-    print(f"{route}: axis {ang:.4f} deg (sigma {rec['axis_deg']:.4f}), line {dist * 1e3:.4f} mm "
-          f"(sigma {rec['position'] * scale * 1e3:.4f}, alignment {align * 1e3:.4f} mm, "
-          f"{align_deg:.4f} deg)")
-    assert ang <= 3 * np.hypot(rec["axis_deg"], align_deg) + 1e-3, (ang, align_deg, rec)
-    assert dist <= 3 * np.hypot(rec["position"] * scale, align) + 1e-6, (dist, align, rec)
-    assert np.radians(dq) <= 3 * rec["state"] + 1e-5, (dq, rec)
+        align_deg = float(np.degrees(align / ring))
+        # the cameras' own error (their centres' RMS residual after the alignment): the
+        # refinement holds them fixed, so its axis line moves with them (four local runs: the
+        # line 0.042-0.064 mm from the truth, its sigma 0.010 mm, the cameras' RMS 0.08 mm)
+        cameras = float(np.sqrt(np.mean(centre_err ** 2)))
+    ang, dist, dq = _joint_errors(model, to_world, rot, rec["refined"])
+    print(f"{route}: refined axis {ang:.4f} deg (sigma {rec['axis_deg']:.4f}, alignment "
+          f"{align_deg:.4f}), line {dist * 1e3:.4f} mm (sigma {rec['position'] * scale * 1e3:.4f}"
+          f", alignment {align * 1e3:.4f}, cameras {cameras * 1e3:.4f}), angle {dq:.4f} deg "
+          f"(sigma {np.degrees(rec['state']):.4f})")
+    assert ang <= 3 * np.hypot(rec["axis_deg"], align_deg), (ang, align_deg, rec)
+    assert dist <= 3 * np.hypot(rec["position"] * scale, np.hypot(align, cameras)), (
+        dist, align, cameras, rec)
+    assert np.radians(dq) <= 3 * rec["state"], (dq, rec)
     # reloaded from model.json, the record is the same
     again = ArticulatedModel.load(out / "model.json").joints[0].confidence["refinement"]
     assert again["verdict"] == rec["verdict"] and again["axis_deg"] == pytest.approx(
