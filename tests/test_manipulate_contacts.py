@@ -22,6 +22,7 @@ from sim.manipulate import (
     plan_candidate,
 )
 from sim.manipulate.candidates import grasp_frame
+from sim.manipulate.planning import motion_contacts
 from sim.manipulate.planning_world import PlanningWorld
 from sim.scene import load_scene
 
@@ -198,6 +199,47 @@ def test_an_obstacle_on_the_approach_line_rejects_the_candidate(world):
     rejected, why = plan_candidate(world_with(obstacle), cand, est, 0.03, q0, 0, {0}, (0.0,))
     assert rejected is None
     assert "approach to the grasp meets model link 1" in why
+
+
+def test_a_part_of_the_carried_link_is_an_obstacle_during_the_motion(world):
+    """The post grasped on its top slides 10 cm along x, and with it (a part of the same link,
+    two points) a flag 0.5 m from the grasp point, placed where the PUMA's forearm (link 3) is
+    at the end of the slide. The motion's check used to leave the moving links out (their
+    spheres stayed where A has them, and the arm passed through them); now they are carried by
+    the estimated joint: the forearm meets the flag during the motion, the candidate is
+    rejected for it, and the flag is back at its place after each check. Without the flag the
+    same candidate is planned."""
+    pts, nrm, grasp, up = _post()
+    est = JointEstimate("prismatic", np.array([1.0, 0.0, 0.0]), grasp)
+    cand = GraspCandidate(grasp, up)
+    q0 = fresh_data(world).qpos[world.qidx]
+    amount = 0.1
+    plan, why = plan_candidate(PlanningWorld.from_model(world, _model(pts, nrm)), cand, est,
+                               amount, q0, 0, {0}, (0.0,))
+    assert plan is not None, why
+    flag = grasp + np.array([0.173, -0.243, 0.417])
+    pw = PlanningWorld.from_model(world, _model(np.r_[pts, [flag, flag]], np.r_[nrm, [up, up]]))
+    flag_geoms = [g for g in pw.model_geoms if np.allclose(pw.data.geom_xpos[g], flag)]
+    assert flag_geoms
+    # at the grasp nothing touches the flag; the old motion check (the moving links left out)
+    # saw nothing along the motion
+    assert pw.arm_contacts(plan.q_grasp, grasp_point=grasp, grasp_links={0},
+                           grasp_normal=up) == []
+    assert not any(pw.arm_contacts(q, moving_links={0}) for q in plan.q_path)
+    # carried to the end of the slide it is in the forearm
+    end = est.motion(amount)
+    hits = pw.arm_contacts(plan.q_path[-1], grasp_point=end[:3, 3] + grasp, grasp_links={0},
+                           grasp_normal=up, moving_links={0}, carry=end)
+    assert hits and all(h.startswith("model link 0/") for h in hits)
+    forearm = {pw.model.geom(g).name or f"geom{g}" for g in range(pw.model.ngeom)
+               if pw.model.body(int(pw.model.geom_bodyid[g])).name.endswith("link3")}
+    assert any(h.split("/")[1] in forearm for h in hits), (hits, forearm)
+    np.testing.assert_allclose(pw.data.geom_xpos[flag_geoms], [flag] * len(flag_geoms))
+    assert motion_contacts(pw, est, amount, cand, plan.q_path, plan.s, {0})
+    rejected, why = plan_candidate(pw, cand, est, amount, q0, 0, {0}, (0.0,))
+    assert rejected is None
+    assert "touches model link 0" in why and "during the motion" in why
+    np.testing.assert_allclose(pw.data.geom_xpos[flag_geoms], [flag] * len(flag_geoms))
 
 
 def test_the_panda_camera_is_not_hidden_by_its_own_housing():

@@ -9,7 +9,8 @@ The plan is made in three rooms:
   replaced by the registered model (one small sphere per voxel of the model's points), where
   every question is asked: whether a candidate is hidden from the wrist camera at the arm's
   current pose, free space in front of it, its clearance from the fixed parts, the arm's
-  contacts at a configuration and along the travel to the pre-grasp pose;
+  contacts at a configuration, along the travel to the pre-grasp pose and along the motion
+  (the links the joint moves carried with it);
 - this module: the ranking (hidden first, clear of the fixed parts, the longest lever about the
   estimated axis; :func:`rank`), the IK of the grasp, the approach and the motion along the
   estimated joint (:func:`plan_candidate`), and the first candidate that works
@@ -122,7 +123,7 @@ def plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate, 
     """IK of the grasp, pre-grasp and approach, and of every waypoint of the motion by
     ``amount`` along ``est``, for each roll (``rolls_deg``, default
     :attr:`PlanningConfig.rolls_deg`); contacts checked in the plan's world (along the motion,
-    the model links ``moving_links`` move with the gripper and are no obstacle); every arm joint
+    the model links ``moving_links`` carried by ``est``: :func:`motion_contacts`); every arm joint
     kept :attr:`PlanningConfig.joint_limit_margin` inside its limits. Of the rolls that pass, those
     whose gripper touches nothing of the model at the grasp pose come first (the part under the
     grasp point between the fingers, not under them: a finger resting on the object 3 mm above
@@ -209,6 +210,25 @@ def motion_path(kin, cfg: PlanningConfig, est: JointEstimate, amount: float, T_g
         p_path.append(T[:3, 3].copy())
         q = r.q
     return np.array(q_path), np.array(p_path), None
+
+
+def motion_contacts(pw: PlanningWorld, est: JointEstimate, amount: float,
+                    cand: GraspCandidate, q_path: np.ndarray, s: np.ndarray, moving_links
+                    ) -> list[str]:
+    """Contacts of the arm along the motion (every ``len // motion_checks``-th waypoint of
+    ``q_path``, at the path parameters ``s``), the model links ``moving_links`` carried there by
+    the estimated joint (:meth:`PlanningWorld.arm_contacts` with ``carry``): the gripper may
+    touch the grasped link where it holds it, nothing else (the arm's forearm sweeping into
+    the door it turns is a collision). The contacts at the first waypoint that has any."""
+    step = max(1, len(q_path) // pw.config.motion_checks)
+    for qk, sk in zip(q_path[step::step], s[step:len(q_path):step], strict=True):
+        T = est.motion(sk * amount)
+        hits = pw.arm_contacts(qk, grasp_point=T[:3, :3] @ cand.point + T[:3, 3],
+                               grasp_links=moving_links, grasp_normal=T[:3, :3] @ cand.normal,
+                               moving_links=moving_links, carry=T)
+        if hits:
+            return hits
+    return []
 
 
 def replay_plan(kin, cfg: PlanningConfig, cand: GraspCandidate, roll_deg: float,
@@ -337,9 +357,7 @@ def _plan_candidate(pw: PlanningWorld, cand: GraspCandidate, est: JointEstimate,
             reasons.append(f"roll {roll}: the motion's joint path kinks at "
                            f"{100 * s[kink[1]]:.0f}% of the path (a joint held at its limit)")
             continue
-        step = max(1, len(q_path) // cfg.motion_checks)
-        hits = next((h for h in (pw.arm_contacts(qk, moving_links=moving_links)
-                                 for qk in q_path[step::step]) if h), [])
+        hits = motion_contacts(pw, est, amount, cand, q_path, s, moving_links)
         if hits:
             reasons.append(f"roll {roll}: the arm touches {hits[0]} during the motion")
             continue

@@ -9,9 +9,10 @@ geom. Every question the plan asks is asked there:
   image (:meth:`PlanningWorld.classify_visibility`);
 - free space in front of a candidate (:meth:`PlanningWorld.clear`) and its clearance from the
   parts that do not move with it (:meth:`PlanningWorld.fixed_clearance`);
-- contacts of the arm at a configuration (:meth:`PlanningWorld.arm_contacts`), along the travel
-  to the pre-grasp pose (:meth:`PlanningWorld.travel_contacts`) and along the approach from there
-  to the grasp (:meth:`PlanningWorld.approach_contacts`).
+- contacts of the arm at a configuration (:meth:`PlanningWorld.arm_contacts`; during the
+  motion with the links the joint moves carried by it, each link's spheres being one mocap
+  body), along the travel to the pre-grasp pose (:meth:`PlanningWorld.travel_contacts`) and
+  along the approach from there to the grasp (:meth:`PlanningWorld.approach_contacts`).
 """
 
 from __future__ import annotations
@@ -72,6 +73,9 @@ class PlanningWorld:
         with (the registered model's spheres: ``travel_clearance``; the true object: none)"""
         self._groups = np.zeros(6, dtype=np.uint8)
         self._groups[COLLISION_GROUP] = 1
+        self.link_mocap: dict[int, int] = {}
+        """model link -> its mocap body's index (a world planned on the registered model: the
+        links the motion carries are moved there, :meth:`arm_contacts`' ``carry``)"""
 
     @classmethod
     def from_model(cls, world: World, registered,
@@ -82,9 +86,12 @@ class PlanningWorld:
         if not registered.scale_known:
             raise ValueError("plan from a registered model (robot frame, metres)")
         spec = mujoco.MjSpec.from_file(str(world.path))
-        body = spec.worldbody.add_body(name="registered_model")
         n_points = 0
         for li, lk in enumerate(registered.links):
+            # one mocap body per link, at the world's origin: a link carried by the motion
+            # (:meth:`arm_contacts`, ``carry``) moves with its body, its spheres' bounding
+            # volumes with it
+            body = spec.worldbody.add_body(name=f"registered_link{li}", mocap=True)
             pts = np.asarray(lk.points, float)
             n_points += len(pts)
             for k, c in enumerate(voxel_centres(pts, config.voxel, config.min_sphere_points)):
@@ -105,13 +112,17 @@ class PlanningWorld:
                 model.geom_contype[g] = 0
                 model.geom_conaffinity[g] = 0
                 model.geom_group[g] = HIDDEN_GROUP
-        bid = model.body("registered_model").id
+        mocap = {int(model.body_mocapid[model.body(f"registered_link{li}").id]): li
+                 for li in range(len(registered.links))}
+        bodies = {model.body(f"registered_link{li}").id for li in range(len(registered.links))}
         geoms = {g: int(model.geom(g).name.split("_")[1][4:]) for g in range(model.ngeom)
-                 if int(model.geom_bodyid[g]) == bid}
+                 if int(model.geom_bodyid[g]) in bodies}
         log.info("planning world: %d model spheres (%.0f mm voxels) for %d model points",
                  len(geoms), 1e3 * config.voxel, n_points)
-        return cls(world, model, "registered model", config, geoms,
-                   config.sphere_radius + config.occlusion_margin, config.travel_clearance)
+        pw = cls(world, model, "registered model", config, geoms,
+                 config.sphere_radius + config.occlusion_margin, config.travel_clearance)
+        pw.link_mocap = {li: k for k, li in mocap.items()}
+        return pw
 
     @classmethod
     def from_scene(cls, world: World, config: PlanningConfig | None = None
@@ -238,40 +249,63 @@ class PlanningWorld:
                    and (int(c.geom[0]) in self.model_geoms or int(c.geom[1]) in self.model_geoms))
 
     def arm_contacts(self, q, grasp_point=None, grasp_links=(), moving_links=(),
-                     grasp_normal=None, clearance: float = 0.0) -> list[str]:
+                     grasp_normal=None, clearance: float = 0.0,
+                     carry: np.ndarray | None = None) -> list[str]:
         """Contacts of the arm at configuration ``q`` in the plan's world. With ``grasp_point``,
         the gripper touching the grasped link (a model link of ``grasp_links``) within
         ``gripper_contact_radius`` of it, no deeper than ``gripper_contact_depth``, is allowed
-        -- never another link, nor the stage; the model links in ``moving_links`` (the grasped
-        link and those it carries, during the motion: they move with the gripper) are not
-        obstacles. With ``grasp_normal`` too, the gripper may also touch the grasped face under
-        its fingers (:meth:`_on_grasped_face`). With ``clearance`` (m, at most
-        :attr:`contact_margin`), a pass of the arm closer than that to a model geom counts as a
-        contact too."""
+        -- never another link, nor the stage. With ``grasp_normal`` too, the gripper may also
+        touch the grasped face under its fingers (:meth:`_on_grasped_face`). With ``clearance``
+        (m, at most :attr:`contact_margin`), a pass of the arm closer than that to a model geom
+        counts as a contact too.
+
+        ``moving_links`` (the grasped link and those it carries, during the motion) with
+        ``carry`` ((4, 4), the motion so far in the world frame): those links' spheres are moved
+        by it and are obstacles like any other (``grasp_point`` and ``grasp_normal`` are then
+        where the motion has taken them); they are put back afterwards. Without ``carry``, or in
+        a world planned on the true object (:meth:`from_scene`, whose links this cannot move),
+        they are no obstacle (they move with the gripper)."""
         m, d = self.model, self.data
         d.qpos[self.qidx] = q
-        mujoco.mj_forward(m, d)
         moving = set(moving_links)
-        out = []
-        for c in d.contact[: d.ncon]:
-            if c.dist >= clearance:
-                continue
-            g1, g2 = int(c.geom[0]), int(c.geom[1])
-            b1, b2 = int(m.geom_bodyid[g1]), int(m.geom_bodyid[g2])
-            if b1 not in self.arm_links and b2 not in self.arm_links:
-                continue
-            arm_b, other = (b1, g2) if b1 in self.arm_links else (b2, g1)
-            if other in self.model_geoms and self.model_geoms[other] in moving:
-                continue
-            if (grasp_point is not None and arm_b in self.gripper_bodies
-                    and self.model_geoms.get(other) in set(grasp_links)
-                    and self._on_grasped_face(d.geom_xpos[other], float(c.dist), grasp_point,
-                                              grasp_normal)):
-                continue
-            name = [(f"model link {self.model_geoms[g]}" if g in self.model_geoms else
-                     mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom{g}")
-                    for g in (g1, g2)]
-            out.append("/".join(name))
+        carried = [self.link_mocap[li] for li in sorted(moving) if li in self.link_mocap] \
+            if carry is not None else []
+        if carried:
+            T = np.asarray(carry, float)
+            quat = np.zeros(4)
+            mujoco.mju_mat2Quat(quat, np.ascontiguousarray(T[:3, :3]).ravel())
+            d.mocap_pos[carried] = T[:3, 3]
+            d.mocap_quat[carried] = quat
+            exempt: set[int] = set()
+        else:
+            exempt = moving
+        try:
+            mujoco.mj_forward(m, d)
+            out = []
+            for c in d.contact[: d.ncon]:
+                if c.dist >= clearance:
+                    continue
+                g1, g2 = int(c.geom[0]), int(c.geom[1])
+                b1, b2 = int(m.geom_bodyid[g1]), int(m.geom_bodyid[g2])
+                if b1 not in self.arm_links and b2 not in self.arm_links:
+                    continue
+                arm_b, other = (b1, g2) if b1 in self.arm_links else (b2, g1)
+                if other in self.model_geoms and self.model_geoms[other] in exempt:
+                    continue
+                if (grasp_point is not None and arm_b in self.gripper_bodies
+                        and self.model_geoms.get(other) in set(grasp_links)
+                        and self._on_grasped_face(d.geom_xpos[other], float(c.dist),
+                                                  grasp_point, grasp_normal)):
+                    continue
+                name = [(f"model link {self.model_geoms[g]}" if g in self.model_geoms else
+                         mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom{g}")
+                        for g in (g1, g2)]
+                out.append("/".join(name))
+        finally:
+            if carried:  # the links back where configuration A has them
+                d.mocap_pos[carried] = 0.0
+                d.mocap_quat[carried] = (1.0, 0.0, 0.0, 0.0)
+                mujoco.mj_kinematics(m, d)
         return sorted(set(out))
 
     def travel_contacts(self, q_from, q_to) -> tuple[list[str], float]:
