@@ -49,7 +49,8 @@ class PlanningWorld:
     """
 
     def __init__(self, world: World, model: mujoco.MjModel, source: str, config: PlanningConfig,
-                 model_geoms: dict, occlusion_tolerance: float, contact_margin: float = 0.0):
+                 model_geoms: dict, occlusion_tolerance: float, contact_margin: float = 0.0,
+                 link_mocap: dict[int, int] | None = None):
         self.world = world
         self.model = model
         self.data = mujoco.MjData(model)
@@ -73,7 +74,7 @@ class PlanningWorld:
         with (the registered model's spheres: ``travel_clearance``; the true object: none)"""
         self._groups = np.zeros(6, dtype=np.uint8)
         self._groups[COLLISION_GROUP] = 1
-        self.link_mocap: dict[int, int] = {}
+        self.link_mocap: dict[int, int] = dict(link_mocap or {})
         """model link -> its mocap body's index (a world planned on the registered model: the
         links the motion carries are moved there, :meth:`arm_contacts`' ``carry``)"""
 
@@ -112,17 +113,15 @@ class PlanningWorld:
                 model.geom_contype[g] = 0
                 model.geom_conaffinity[g] = 0
                 model.geom_group[g] = HIDDEN_GROUP
-        mocap = {int(model.body_mocapid[model.body(f"registered_link{li}").id]): li
-                 for li in range(len(registered.links))}
-        bodies = {model.body(f"registered_link{li}").id for li in range(len(registered.links))}
-        geoms = {g: int(model.geom(g).name.split("_")[1][4:]) for g in range(model.ngeom)
-                 if int(model.geom_bodyid[g]) in bodies}
+        link_of = {model.body(f"registered_link{li}").id: li
+                   for li in range(len(registered.links))}
+        geoms = {g: link_of[int(model.geom_bodyid[g])] for g in range(model.ngeom)
+                 if int(model.geom_bodyid[g]) in link_of}
         log.info("planning world: %d model spheres (%.0f mm voxels) for %d model points",
                  len(geoms), 1e3 * config.voxel, n_points)
-        pw = cls(world, model, "registered model", config, geoms,
-                 config.sphere_radius + config.occlusion_margin, config.travel_clearance)
-        pw.link_mocap = {li: k for k, li in mocap.items()}
-        return pw
+        return cls(world, model, "registered model", config, geoms,
+                   config.sphere_radius + config.occlusion_margin, config.travel_clearance,
+                   {li: int(model.body_mocapid[b]) for b, li in link_of.items()})
 
     @classmethod
     def from_scene(cls, world: World, config: PlanningConfig | None = None
