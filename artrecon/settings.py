@@ -117,6 +117,7 @@ RANGES: dict[str, Range | Choice] = {
     "sfm.extractor": Choice(("colmap", "opencv")),
     "sfm.opencv_contrast": Range(0, 0.5, "OpenCV SIFT contrast threshold", **_OPEN),
     "sfm.first_octave": Range(-1, 3, "-1 upsamples the image 2x first"),
+    "sfm.region_margin_px": Range(-1, 100_000, "pixels; negative: the whole images"),
     "sfm.matching": Choice(("auto", "exhaustive", "sequential")),
     "sfm.pose_neighbours": Range(1, 1000, "images matched with each image"),
     "sfm.pose_ba_refinements": Range(0, 100, "rounds of points-only bundle adjustment"),

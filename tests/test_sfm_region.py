@@ -1,0 +1,126 @@
+"""Features only where the object is (issue 20): with known poses and the object's region
+(``cameras.json``'s ``region``), SfM searches each image only in the box around the region's
+projection."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+import render_fixture
+from render_fixture import look_at
+
+from artrecon import io, sfm
+from artrecon.errors import InputError
+from artrecon.reconstruct import _resolve_inputs
+from artrecon.sfm import extraction
+
+
+def _camera(eye, target=(0.0, 0.0, 0.08)):
+    return look_at(np.asarray(eye, float), target)
+
+
+def test_a_box_holds_the_region_projection_and_its_margin():
+    K = render_fixture.K
+    intr = io.Intrinsics(K, (render_fixture.WIDTH, render_fixture.HEIGHT))
+    region = np.array([[x, y, z] for x in (-0.05, 0.05) for y in (-0.04, 0.04)
+                       for z in (0.0, 0.12)])
+    T = _camera([0.45, 0.1, 0.3])
+    boxes = extraction.region_boxes(region, {"v": T}, intr, intr.size, margin=10)
+    x0, y0, x1, y1 = boxes["v"]
+    T_cw = np.linalg.inv(T)
+    P = region @ T_cw[:3, :3].T + T_cw[:3, 3]
+    uv = (P @ K.T)[:, :2] / P[:, 2:3]
+    # every corner projects inside, at least the margin from the box's edges
+    assert np.all(uv[:, 0] - 10 >= x0) and np.all(uv[:, 1] - 10 >= y0)
+    assert np.all(uv[:, 0] + 10 < x1) and np.all(uv[:, 1] + 10 < y1)
+    # and the box is no larger than that, but for the corner's alignment
+    assert x1 - np.ceil(uv[:, 0].max() + 10) <= 1 and y1 - np.ceil(uv[:, 1].max() + 10) <= 1
+    assert np.floor(uv[:, 0].min() - 10) - x0 < extraction.BOX_ALIGN
+    assert x0 % extraction.BOX_ALIGN == 0 and y0 % extraction.BOX_ALIGN == 0
+    assert 0 < (x1 - x0) * (y1 - y0) < 0.5 * intr.size[0] * intr.size[1]
+
+
+def test_a_region_behind_or_around_the_camera_gives_the_whole_image():
+    intr = io.Intrinsics(render_fixture.K, (render_fixture.WIDTH, render_fixture.HEIGHT))
+    T = _camera([0.45, 0.0, 0.3])
+    centre = T[:3, 3]
+    region = centre + np.array([[x, y, z] for x in (-0.1, 0.1) for y in (-0.1, 0.1)
+                                for z in (-0.1, 0.1)])  # the camera sits inside the region
+    boxes = extraction.region_boxes(region, {"v": T}, intr, intr.size, margin=0)
+    assert boxes["v"] == (0, 0, *intr.size)
+
+
+def test_features_in_a_box_are_the_whole_images_features_there(tmp_path):
+    """Known answer: away from the box's edges, the keypoints and descriptors of the cropped
+    search are those of the whole image (the crop's corner on the octaves' grid)."""
+    path = render_fixture.render_view(tmp_path / "v.png", "a", _camera([0.42, -0.15, 0.3]))
+    gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    config = sfm.SfMConfig(max_num_features=100_000)  # no cap: both keep every keypoint
+    sift = extraction.sift_extractor(config)
+    whole, d_whole = extraction.image_features(gray, sift, config)
+    box = (96, 64, 416, 352)
+    crop, d_crop = extraction.image_features(gray, sift, config, box)
+    assert len(crop) > 200
+    # COLMAP coordinates (pixel centres at 0.5) within the box
+    assert crop[:, 0].min() >= box[0] and crop[:, 0].max() <= box[2]
+    assert crop[:, 1].min() >= box[1] and crop[:, 1].max() <= box[3]
+
+    def interior(rows):
+        scale = np.hypot(rows[:, 2], rows[:, 4])
+        reach = 24 + 6 * scale  # the keypoint's blur and descriptor window, generously
+        return ((rows[:, 0] - reach > box[0]) & (rows[:, 0] + reach < box[2])
+                & (rows[:, 1] - reach > box[1]) & (rows[:, 1] + reach < box[3]))
+
+    a, da = whole[interior(whole)], d_whole[interior(whole)]
+    b, db = crop[interior(crop)], d_crop[interior(crop)]
+    assert len(a) > 100
+    dist = np.linalg.norm(a[:, None, :2] - b[None, :, :2], axis=2)
+    nearest = dist.argmin(1)
+    found = dist[np.arange(len(a)), nearest] < 1e-3
+    assert found.mean() > 0.99, f"{found.mean():.3f} of the interior keypoints found again"
+    desc_diff = np.abs(da[found] - db[nearest[found]]).max(1)
+    assert np.median(desc_diff) < 1e-3
+
+
+def _capture_folder(tmp_path, region):
+    from test_sfm import _write_images
+    _write_images(tmp_path / "images", 6)
+    cams = {"K": [[50, 0, 31.5], [0, 50, 23.5], [0, 0, 1]], "width": 64, "height": 48,
+            "images": [{"file": f"img_{i:02d}.png", "T_world_camera": np.eye(4).tolist()}
+                       for i in range(6)]}
+    if region is not None:
+        cams["region"] = region
+    (tmp_path / "cameras.json").write_text(json.dumps(cams))
+    return tmp_path
+
+
+def test_the_region_comes_only_with_the_camera_files_own_poses(tmp_path):
+    pts = [[0, 0, 1], [1, 0, 1], [0, 1, 1], [0, 0, 2]]
+    folder = _capture_folder(tmp_path, {"points": pts, "source": "a test"})
+    iset, _, poses = _resolve_inputs(folder, None, True, "A")
+    np.testing.assert_allclose(iset.region, pts)
+    iset, _, poses = _resolve_inputs(folder, None, None, "A")  # SfM from the images
+    assert poses is None and iset.region is None
+    given = {f"img_{i:02d}.png": np.eye(4) for i in range(6)}  # poses of another frame, maybe
+    iset, _, poses = _resolve_inputs(folder, None, given, "A")
+    assert poses is not None and iset.region is None
+
+
+@pytest.mark.parametrize("region, says", [
+    ({"points": [[0, 0, 1], [1, 0, 1]]}, "at least four"),
+    ({"points": [[0, 0, 1], [1, 0, 1], [0, 1, 1], [0, 0, float("nan")]]}, "at least four"),
+    ({"points": "here"}, "region"),
+    ({"vertices": [[0, 0, 1]]}, "region"),
+])
+def test_a_malformed_region_is_refused_with_its_file(tmp_path, region, says):
+    folder = _capture_folder(tmp_path, region)
+    with pytest.raises(InputError, match=says) as err:
+        _resolve_inputs(folder, None, True, "A")
+    assert "cameras.json" in str(err.value) and "remove the region" in str(err.value)
+
+
+def test_no_region_is_none(tmp_path):
+    assert io.load_region(_capture_folder(tmp_path, None) / "cameras.json") is None
