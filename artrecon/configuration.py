@@ -300,7 +300,8 @@ def _reconstruct_configuration(image_set, out_dir: Path, intrinsics, poses, sfm_
                 + _layout_cause(intrinsics, reference_intrinsics))
     timings["sfm"] = time.perf_counter() - t
     t, cpu = time.perf_counter(), time.process_time()
-    cloud = fused_points(sfm, dense_config)
+    cloud = fused_points(sfm, dense_config,
+                         region=image_set.region if poses is not None else None)
     centres, axes = _cameras(sfm)
     occluders = cloud.points  # background too: the table and walls hide things
     # normals for the object's points only (a few percent of a full-resolution cloud; the

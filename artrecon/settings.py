@@ -147,6 +147,7 @@ RANGES: dict[str, Range | Choice] = {
     "dense.depth_tolerance": Range(0, 0.5, "a fraction of the depth", **_OPEN),
     "dense.min_consistent": Range(1, 1000, "other images"),
     "dense.max_free_space_ratio": Range(0, 1, _FRACTION),
+    "dense.region_margin": Range(0, 100, "a fraction of the camera distance"),
     "dense.crop_radius": Range(0, 100, "a fraction of the camera distance", **_OPEN),
     "dense.voxel_pixels": Range(0, 100, "pixels", **_OPEN),
     "dense.normal_neighbours": Range(3, 1000, "points"),
