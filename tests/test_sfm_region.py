@@ -4,6 +4,7 @@ projection."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import cv2
@@ -124,3 +125,52 @@ def test_a_malformed_region_is_refused_with_its_file(tmp_path, region, says):
 
 def test_no_region_is_none(tmp_path):
     assert io.load_region(_capture_folder(tmp_path, None) / "cameras.json") is None
+
+
+def test_the_capture_gives_the_surveys_hull_or_the_cube_around_its_sphere():
+    from sim.capture.image_set import object_region
+    from sim.views import ViewPlan
+
+    hull = [[0.0, 0.0, 0.4], [0.1, 0.0, 0.4], [0.0, 0.1, 0.4], [0.0, 0.0, 0.5]]
+    plan = ViewPlan(centre=np.array([0.02, 0.02, 0.42]), radius=0.08,
+                    survey={"hull_vertices": hull})
+    np.testing.assert_allclose(object_region(plan)["points"], hull)
+    cube = np.array(object_region(ViewPlan(centre=np.array([0.0, 0.0, 0.4]), radius=0.1))
+                    ["points"])
+    assert cube.shape == (8, 3)
+    np.testing.assert_allclose(cube.min(axis=0), [-0.1, -0.1, 0.3])
+    np.testing.assert_allclose(cube.max(axis=0), [0.1, 0.1, 0.5])
+
+
+@pytest.mark.slow
+def test_sfm_in_the_region_keeps_the_objects_points(rendered, tmp_path):
+    """The hinge fixture's configuration A with its poses, once with the object's box as the
+    region and once without: every keypoint lies in its image's box, the features are fewer,
+    and the object keeps (nearly) all its triangulated points."""
+    truth = rendered["a"]
+    lo, hi = truth.object_points.min(axis=0), truth.object_points.max(axis=0)
+    region = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                       for z in (lo[2], hi[2])])
+    iset = io.load_image_folder(truth.folder)
+    intr, poses = io.load_cameras_json(iset.cameras_file)
+
+    def on_object(res):
+        xyz = np.array([p.xyz for p in res.reconstruction.points3D.values()])
+        return int(np.all((xyz > lo - 0.002) & (xyz < hi + 0.002), axis=1).sum())
+
+    whole = sfm.run_sfm(iset, tmp_path / "whole", intr, poses, progress=False)
+    boxed_set = dataclasses.replace(iset, region=region)
+    boxed = sfm.run_sfm(boxed_set, tmp_path / "boxed", intr, poses, progress=False)
+    boxes = extraction.region_boxes(region, poses, intr, iset.size,
+                                    sfm.SfMConfig().region_margin_px)
+    feats = extraction.read_features(tmp_path / "boxed" / "database.db")
+    n_whole = sum(len(f[1]) for f in extraction.read_features(
+        tmp_path / "whole" / "database.db").values())
+    for name, (_, kp, _) in feats.items():
+        x0, y0, x1, y1 = boxes[name]
+        assert np.all((kp[:, 0] >= x0 - 0.5) & (kp[:, 0] < x1) & (kp[:, 1] >= y0 - 0.5)
+                      & (kp[:, 1] < y1)), name
+    assert sum(len(f[1]) for f in feats.values()) < 0.8 * n_whole
+    print(f"object points: {on_object(boxed)} in the region, {on_object(whole)} from the whole "
+          f"images")
+    assert on_object(boxed) >= 0.9 * on_object(whole)
