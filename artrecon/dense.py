@@ -8,8 +8,8 @@ pycolmap's PatchMatch stereo needs CUDA, so this stage uses two-view stereo inst
    and OpenCV semi-global matching (``StereoSGBM``) gives a disparity map, its search range taken
    from the sparse points the two images share;
 3. disparities are back-projected to 3D (only those near the object: within
-   ``crop_radius`` of the cameras' focus point); each image gets a depth map of its pair's
-   points;
+   ``crop_radius`` of the cameras' focus point, or, with the object's region known, inside its
+   box widened by ``region_margin``); each image gets a depth map of its pair's points;
 4. the points are merged on a voxel grid (position and colour averaged);
 5. depth fusion: every merged point is checked against every depth map. A view whose depth
    agrees with the point's (relative tolerance) sees it; a view whose depth map shows a surface
