@@ -86,13 +86,9 @@ def _cameras(sfm: SfMResult) -> tuple[np.ndarray, np.ndarray]:
 def inputs_digest(image_set: ImageSet, intrinsics: Intrinsics | None, poses, settings: dict,
                   seed: int) -> str:
     """SHA-256 of everything the stage's result depends on: the images' bytes, the intrinsics,
-    the camera poses, the object's region (with the poses), the settings, the seed and
-    artrecon's version."""
+    the camera poses, the settings, the seed and artrecon's version."""
     h = hashlib.sha256()
-    region = image_set.region if poses is not None else None
     h.update(json.dumps({"names": image_set.names, "digests": list(image_set.digests),
-                         "region": None if region is None else
-                         np.asarray(region).round(12).tolist(),
                          "K": None if intrinsics is None else intrinsics.K.tolist(),
                          "poses": None if poses is None else
                          {k: np.asarray(v).round(12).tolist() for k, v in sorted(poses.items())},
@@ -300,8 +296,7 @@ def _reconstruct_configuration(image_set, out_dir: Path, intrinsics, poses, sfm_
                 + _layout_cause(intrinsics, reference_intrinsics))
     timings["sfm"] = time.perf_counter() - t
     t, cpu = time.perf_counter(), time.process_time()
-    cloud = fused_points(sfm, dense_config,
-                         region=image_set.region if poses is not None else None)
+    cloud = fused_points(sfm, dense_config)
     centres, axes = _cameras(sfm)
     occluders = cloud.points  # background too: the table and walls hide things
     # normals for the object's points only (a few percent of a full-resolution cloud; the

@@ -8,8 +8,8 @@ pycolmap's PatchMatch stereo needs CUDA, so this stage uses two-view stereo inst
    and OpenCV semi-global matching (``StereoSGBM``) gives a disparity map, its search range taken
    from the sparse points the two images share;
 3. disparities are back-projected to 3D (only those near the object: within
-   ``crop_radius`` of the cameras' focus point, or, with the object's region known, inside its
-   box widened by ``region_margin``); each image gets a depth map of its pair's points;
+   ``crop_radius`` of the cameras' focus point); each image gets a depth map of its pair's
+   points;
 4. the points are merged on a voxel grid (position and colour averaged);
 5. depth fusion: every merged point is checked against every depth map. A view whose depth
    agrees with the point's (relative tolerance) sees it; a view whose depth map shows a surface
@@ -81,12 +81,6 @@ class DenseConfig:
     """Only points within this fraction of the median camera distance from the cameras' focus
     point are kept (the object, the table around it and anything that can hide it; the room
     beyond is background that no later stage needs densely)."""
-    region_margin: float = 0.15
-    """With the object's region known (the capture's ``cameras.json``, with its poses): only points
-    inside the region's bounding box widened by this fraction of the median camera distance on
-    every side are kept, instead of ``crop_radius``'s sphere: the object and a band of the table
-    around it, enough for the support plane (:func:`object_region`) and for what can hide the
-    object. At full resolution the sphere held ~850k points for an object's ~26k."""
     voxel_pixels: float = 1.5
     """Merge voxel edge, in downsampled pixels at the median camera distance to the focus."""
     normal_neighbours: int = 16
@@ -211,15 +205,18 @@ def _pair_points(vi: _View, vj: _View, img_i, img_j, sparse: np.ndarray, config:
     # Disparity range from the sparse points seen by both images.
     if len(sparse) < 10:
         return None
-    # The range of the shared sparse points' disparities: both projections in the first
-    # rectified frame (R1 @ X_i), the right camera's offset in P2. (Until issue 20's feature
-    # region, the right projection took R2 @ X_j, counting the baseline twice: the range sat at
-    # about twice the true disparities, and sparse points of the whole table and room kept the
-    # object inside it only by their spread; with the features in the object's region the
-    # object's own disparities fell outside it.)
+    # Known flaw, kept on purpose: P2 expects points in the first rectified frame (R1 @ X_i),
+    # so projecting R2 @ X_j counts the baseline twice and the range sits at about twice the
+    # true disparities. Correcting that alone made the dense points less accurate (pliers,
+    # known cameras: median distance to the true surface 1.59 -> 2.06 mm, share beyond 3 mm
+    # 14% -> 28%), because the too-high range cuts small-disparity outliers; it should change
+    # only together with an outlier filter that does that job on purpose. (On pliers at 12
+    # views per ring with a self-calibrated camera the range missed the object: 47 consistent
+    # dense points instead of ~100k.)
     Xi = (vi.T_cw[:3, :3] @ sparse.T).T + vi.T_cw[:3, 3]
+    Xj = (vj.T_cw[:3, :3] @ sparse.T).T + vj.T_cw[:3, 3]
     xl = (P1[:, :3] @ (R1 @ Xi.T)).T
-    xr = (P2[:, :3] @ (R1 @ Xi.T)).T + P2[:, 3]
+    xr = (P2[:, :3] @ (R2 @ Xj.T)).T + P2[:, 3]
     d = xl[:, 0] / xl[:, 2] - xr[:, 0] / xr[:, 2]
     lo, hi = np.percentile(d, [1, 99])
     min_disp = int(np.floor(lo - config.disparity_margin))
@@ -253,9 +250,6 @@ def _pair_points(vi: _View, vj: _View, img_i, img_j, sparse: np.ndarray, config:
         valid &= disp - nearest_far <= config.edge_jump_px
     pts_rect = cv2.reprojectImageTo3D(disp, Q)[valid]
     cols = left[valid][:, ::-1]  # BGR -> RGB
-    # a zero disparity (inside a range that reaches it) lies at infinity
-    finite = np.isfinite(pts_rect).all(axis=1)
-    pts_rect, cols = pts_rect[finite], cols[finite]
     X_cam = pts_rect @ R1  # rectified -> camera i (R1 maps camera i to rectified)
     T_wc = np.linalg.inv(vi.T_cw)
     X_w = X_cam @ T_wc[:3, :3].T + T_wc[:3, 3]
@@ -371,8 +365,7 @@ def dense_points(sfm, config: DenseConfig = DenseConfig(), progress=None) -> Den
     return fused_points(sfm, config, progress).oriented()
 
 
-def fused_points(sfm, config: DenseConfig = DenseConfig(), progress=None,
-                 region: np.ndarray | None = None) -> FusedPoints:
+def fused_points(sfm, config: DenseConfig = DenseConfig(), progress=None) -> FusedPoints:
     """Dense points of one SfM model, without normals (steps 1-5 of the module docstring); their
     normals (step 6) by :meth:`FusedPoints.oriented`, for the points that need them.
 
@@ -382,9 +375,6 @@ def fused_points(sfm, config: DenseConfig = DenseConfig(), progress=None,
     config : DenseConfig
     progress : text stream, optional
         Where to draw a tqdm bar (None: no bar).
-    region : (k, 3) float, optional
-        Points whose convex hull holds the object, in the SfM model's frame (known poses):
-        points are kept inside their bounding box widened by ``config.region_margin``.
 
     Returns
     -------
@@ -404,10 +394,6 @@ def fused_points(sfm, config: DenseConfig = DenseConfig(), progress=None,
     centres = np.array([v.centre for v in views])
     centre = focus_point(centres, np.array([v.axis for v in views]))
     cam_dist = float(np.median(np.linalg.norm(centres - centre, axis=1)))
-    if region is not None:
-        region = np.asarray(region, float)
-        widen = config.region_margin * cam_dist
-        box = (region.min(axis=0) - widen, region.max(axis=0) + widen)
     partners = choose_partners(views, centre, config)
     if not partners:
         raise ReconstructionError("dense: no stereo pair among the registered images (neighbours"
@@ -433,10 +419,7 @@ def fused_points(sfm, config: DenseConfig = DenseConfig(), progress=None,
             continue
         X, c = out
         u, v, z, inside = _project(views[i], Ks[i], X, w, h)
-        if region is None:
-            near = inside & (np.linalg.norm(X - centre, axis=1) < config.crop_radius * cam_dist)
-        else:
-            near = inside & np.all((X >= box[0]) & (X <= box[1]), axis=1)
+        near = inside & (np.linalg.norm(X - centre, axis=1) < config.crop_radius * cam_dist)
         if not near.any():
             continue
         depth[i] = _zbuffer(u[near], v[near], z[near], w, h)

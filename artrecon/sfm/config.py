@@ -33,15 +33,6 @@ class SfMConfig:
     small, flat links (pliers, scissors) already have the fewest cross-configuration matches.
     COLMAP's extractor only: OpenCV's SIFT (the default ``extractor``) always upsamples first
     and has no such setting."""
-    region_margin_px: int = 32
-    """With camera poses and the object's region (``cameras.json``'s ``region``): features are
-    extracted only in the box around the region's projection, widened by this many pixels on
-    each side (the region's points outline the object; SIFT needs some image around a keypoint
-    for its scale space and descriptor). Measured on pliers A (121 images, 640x480, the survey's
-    hull as the region, margin 24): the boxes hold 17% of the image area, and the SfM stage took
-    5.4 CPU s instead of 27.3 (extraction 3.0 against 14.9, matching 1.5 against 9.0), with 1642
-    points inside the hull's bounding box against 1651 from the whole images. Negative: the
-    whole images always. OpenCV's extractor only (``extractor``)."""
     matching: str = "auto"
     """'auto' (with camera poses: :func:`artrecon.sfm.pairs.pose_pairs`; without: sequential
     window + retrieval pairs), 'exhaustive', or 'sequential' (window only)."""
