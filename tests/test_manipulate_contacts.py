@@ -262,3 +262,20 @@ def test_the_panda_camera_is_not_hidden_by_its_own_housing():
         T = pw.kin.camera_pose(q)
         (c,) = pw.classify_visibility(q, [GraspCandidate(T[:3, 3] + 0.3 * T[:3, 2], -T[:3, 2])])
         assert not any(c.visibility.endswith(f"by {h}") for h in hand), c.visibility
+
+
+@pytest.mark.parametrize("lift, clear", [(0.003, True), (0.005, True), (0.03, False)])
+def test_the_surfaces_own_noise_does_not_block_its_approach_but_an_obstacle_does(world, lift,
+                                                                                  clear):
+    """The post's top, grasped at its centre, with two stray points ``lift`` above it (one
+    model sphere): 3-5 mm up (the dense points' noise: scissors at issue 20's region, where
+    such a sphere held the start of the centre ray, 6 mm up, and every top face of the moving
+    blade was "not clear") the candidate is clear; 3 cm up, a real part above the face, it
+    is not."""
+    pts, nrm, grasp, up = _post()
+    above = grasp + [0.0, 0.0, lift]
+    pw = PlanningWorld.from_model(world, _model(np.r_[pts, [above, above]], np.r_[nrm, [up, up]]))
+    cand = GraspCandidate(grasp, up)
+    assert (pw.clear([cand]) == [cand]) is clear
+    bare = PlanningWorld.from_model(world, _model(pts, nrm))
+    assert bare.clear([cand]) == [cand]

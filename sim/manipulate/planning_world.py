@@ -184,16 +184,52 @@ class PlanningWorld:
             out.append(GraspCandidate(c.point, c.normal, True, f"occluded by {what}"))
         return out
 
+    def _past_own_spheres(self, point: np.ndarray, normal: np.ndarray, start: float,
+                          spheres: tuple | None = None) -> float:
+        """Where a ray from ``point`` along ``normal`` starts: ``start`` out, or beyond the model
+        spheres that hold that start (the surface's own layer of spheres, each up to a sphere's
+        radius plus the points' noise off the surface: a ray begun inside one meets it at
+        distance 0 and calls the surface's own noise an obstacle in front of it). ``spheres``:
+        the model spheres' (KD-tree of centres, centres, radii), as :meth:`_model_spheres`."""
+        tree, centres, radius = spheres if spheres is not None else self._model_spheres()
+        if tree is None:
+            return start
+        for _ in range(4):
+            p0 = point + start * normal
+            near = np.asarray(tree.query_ball_point(p0, float(radius.max())), dtype=int)
+            near = near[np.linalg.norm(centres[near] - p0, axis=1) < radius[near]]
+            if len(near) == 0:
+                break
+            # the farthest exit along the ray of the spheres that hold its start
+            d = centres[near] - point
+            along = d @ normal
+            off = np.sqrt(np.maximum(np.sum(d * d, axis=1) - along ** 2, 0.0))
+            start = float(np.max(along + np.sqrt(np.maximum(radius[near] ** 2 - off ** 2,
+                                                            0.0)))) + 1e-4
+        return start
+
+    def _model_spheres(self) -> tuple:
+        """(KD-tree of the model spheres' centres where they are now, the centres, their radii);
+        (None, None, None) without model spheres."""
+        if not self.model_geoms:
+            return None, None, None
+        ids = np.fromiter(self.model_geoms, dtype=np.int64)
+        centres = np.array(self.data.geom_xpos[ids])
+        return cKDTree(centres), centres, np.array(self.model.geom_size[ids, 0])
+
     def clear(self, candidates) -> list[GraspCandidate]:
         """Candidates with free space in front of them: a bundle of rays along the normal (the
-        centre and four around it) meets nothing for ``approach_free_length``."""
+        centre and four around it) meets nothing for ``approach_free_length``. The centre ray
+        starts beyond the spheres its start lies in (:meth:`_past_own_spheres`)."""
         cfg = self.config
         geomid = np.zeros(1, dtype=np.int32)
         start = max(1e-3, 1.5 * (self.occlusion_tolerance - cfg.occlusion_margin))
+        spheres = self._model_spheres()
         out = []
         for c in candidates:
             u, v = tangents(c.normal)
-            starts = [c.point + start * c.normal]
+            starts = [c.point + self._past_own_spheres(c.point, c.normal, start, spheres)
+                      * c.normal]
             starts += [c.point + (cfg.grasp_standoff + 1e-3) * c.normal + cfg.approach_radius * w
                        for w in (u, -u, v, -v)]
             if all(not 0 <= mujoco.mj_ray(self.model, self.data, p0, c.normal, self._groups, 1,
