@@ -86,9 +86,13 @@ def _cameras(sfm: SfMResult) -> tuple[np.ndarray, np.ndarray]:
 def inputs_digest(image_set: ImageSet, intrinsics: Intrinsics | None, poses, settings: dict,
                   seed: int) -> str:
     """SHA-256 of everything the stage's result depends on: the images' bytes, the intrinsics,
-    the camera poses, the settings, the seed and artrecon's version."""
+    the camera poses, the object's region (with the poses), the settings, the seed and
+    artrecon's version."""
     h = hashlib.sha256()
+    region = image_set.region if poses is not None else None
     h.update(json.dumps({"names": image_set.names, "digests": list(image_set.digests),
+                         "region": None if region is None else
+                         np.asarray(region).round(12).tolist(),
                          "K": None if intrinsics is None else intrinsics.K.tolist(),
                          "poses": None if poses is None else
                          {k: np.asarray(v).round(12).tolist() for k, v in sorted(poses.items())},

@@ -212,7 +212,10 @@ def _pair_points(vi: _View, vj: _View, img_i, img_j, sparse: np.ndarray, config:
     # 14% -> 28%), because the too-high range cuts small-disparity outliers; it should change
     # only together with an outlier filter that does that job on purpose. (On pliers at 12
     # views per ring with a self-calibrated camera the range missed the object: 47 consistent
-    # dense points instead of ~100k.)
+    # dense points instead of ~100k.) The range holds the object only while the shared points
+    # spread to the far table: with the features in the object's region alone it missed it
+    # (pliers: 2k points instead of 26k), so SfM keeps coarse background features beside the
+    # region's (artrecon.sfm.SfMConfig.background_features).
     Xi = (vi.T_cw[:3, :3] @ sparse.T).T + vi.T_cw[:3, 3]
     Xj = (vj.T_cw[:3, :3] @ sparse.T).T + vj.T_cw[:3, 3]
     xl = (P1[:, :3] @ (R1 @ Xi.T)).T

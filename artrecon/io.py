@@ -13,6 +13,16 @@ is opened here (in particular never ``ground_truth/``).
 
 ``images`` may also be a mapping ``name -> 4x4``; ``"file"`` is accepted for ``"name"``, and an
 image whose ``T_world_camera`` is null has no known pose.
+
+Optionally, where the object is, in the same world frame as the poses::
+
+    "region": {"points": [[x, y, z], ...], "source": "..."}
+
+points whose convex hull holds the object (``sim.capture`` writes the convex hull of the visual
+hull its survey carved from the robot's own photographs; a bounding box's eight corners will do).
+With the poses held fixed, SfM then extracts features only where the region projects into each
+image (:func:`artrecon.sfm.extraction.region_boxes`): the table and room around the object cost
+most of the extraction and matching and tell a reconstruction from known poses nothing.
 """
 
 from __future__ import annotations
@@ -65,6 +75,10 @@ class ImageSet:
         Common image size in pixels.
     cameras_file : Path or None
         ``cameras.json`` of a capture, if present.
+    region : (k, 3) float or None
+        Points whose convex hull holds the object, in the camera poses' world frame
+        (``cameras.json``'s ``region``, :func:`load_region`); set only when the set's own poses
+        are used (see :func:`artrecon.reconstruct.reconstruct`), else None.
     digests : tuple of str
         SHA-1 of each image file's bytes, in the order of ``names`` (to tell identical image sets
         apart from merely similar ones).
@@ -80,6 +94,7 @@ class ImageSet:
     cameras_file: Path | None
     digests: tuple[str, ...] = ()
     thumbnails: tuple = field(default=(), compare=False, repr=False)
+    region: np.ndarray | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)
@@ -309,6 +324,36 @@ def load_cameras_json(path: str | Path) -> tuple[Intrinsics, dict[str, np.ndarra
                          "expected {\"K\": 3x3, \"width\": W, \"height\": H, \"images\": "
                          "[{\"name\": ..., \"T_world_camera\": 4x4}, ...]} (see "
                          "artrecon.io)") from exc
+
+
+def load_region(path: str | Path) -> np.ndarray | None:
+    """The ``region`` of a capture's ``cameras.json`` (see the module docstring): (k, 3) points
+    whose convex hull holds the object, in the poses' world frame; None when the file has none.
+
+    Raises
+    ------
+    InputError
+        The file cannot be read, or its region is not at least four finite 3D points.
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"cannot read camera file {path}: {exc}") from exc
+    region = data.get("region") if isinstance(data, dict) else None
+    if region is None:
+        return None
+    try:
+        points = np.asarray(region["points"], dtype=float)
+    except (TypeError, ValueError, KeyError) as exc:
+        raise InputError(f"camera file {path}: 'region' must be {{\"points\": [[x, y, z], ...]}} "
+                         f"({type(exc).__name__}: {exc}); fix it or remove the region (features "
+                         "are then extracted from the whole images)") from exc
+    if points.ndim != 2 or points.shape[1] != 3 or len(points) < 4 \
+            or not np.all(np.isfinite(points)):
+        raise InputError(f"camera file {path}: 'region' needs at least four finite 3D points "
+                         f"(got an array of shape {points.shape}); fix it or remove the region")
+    return points
 
 
 def _parse_cameras(data, path: Path) -> tuple[Intrinsics, dict[str, np.ndarray]]:

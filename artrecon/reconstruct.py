@@ -86,6 +86,7 @@ could check.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import shutil
 import tempfile
@@ -115,6 +116,7 @@ from artrecon.io import (
     check_distinct,
     load_cameras_json,
     load_image_folder,
+    load_region,
     parse_intrinsics,
 )
 from artrecon.joints_stage import check_joints, load_joints, run_joints
@@ -178,6 +180,9 @@ def _resolve_inputs(images, intrinsics, poses_arg, which: str):
                              "poses (SfM from the images) or add the camera file")
         intr_c, poses = load_cameras_json(iset.cameras_file)
         intr = intr or intr_c
+        # where the object is, in the frame of these poses (only theirs: poses given as a dict
+        # may be in another frame)
+        iset = dataclasses.replace(iset, region=load_region(iset.cameras_file))
     elif isinstance(poses_arg, dict):
         poses = {Path(k).name: np.asarray(v, dtype=float) for k, v in poses_arg.items()}
     if poses is not None and intr is None:

@@ -43,7 +43,84 @@ def _colmap_keypoints(kps, factor: float) -> np.ndarray:
                     axis=1).astype(np.float32)
 
 
-def _opencv_features(image_set: ImageSet, database_path: Path, config: SfMConfig) -> None:
+#: The corner of a feature box (:func:`region_boxes`) lies on a multiple of this many pixels:
+#: SIFT halves the image from octave to octave, so a crop whose corner is a multiple of 2^k
+#: pixels samples octave k (and those below it) on the whole image's grid.
+BOX_ALIGN = 16
+
+
+def region_boxes(region: np.ndarray, poses: dict[str, np.ndarray], intrinsics: Intrinsics,
+                 size: tuple[int, int], margin: int) -> dict[str, tuple[int, int, int, int]]:
+    """Per posed image, the pixel box ``(x0, y0, x1, y1)`` (x1, y1 exclusive) around the
+    projection of the object's region, widened by ``margin`` pixels and clipped to the image.
+
+    Parameters
+    ----------
+    region : (k, 3) float
+        Points whose convex hull holds the object (world frame of ``poses``).
+    poses : dict of str to (4, 4) float
+        ``T_world_camera`` per image name (OpenCV).
+    intrinsics : Intrinsics
+    size : (width, height)
+    margin : int
+
+    Returns
+    -------
+    dict of str to (int, int, int, int)
+        An image whose camera has a region point at or behind its image plane gets the whole
+        image (the projection is unbounded there).
+    """
+    width, height = size
+    K = intrinsics.K
+    region = np.asarray(region, float)
+    boxes = {}
+    for name, T in poses.items():
+        T_cw = np.linalg.inv(np.asarray(T, float))
+        P = region @ T_cw[:3, :3].T + T_cw[:3, 3]
+        if np.any(P[:, 2] <= 1e-6):
+            boxes[name] = (0, 0, int(width), int(height))
+            continue
+        u = K[0, 0] * P[:, 0] / P[:, 2] + K[0, 2]
+        v = K[1, 1] * P[:, 1] / P[:, 2] + K[1, 2]
+        # the corner on a multiple of BOX_ALIGN: SIFT's octaves then sample the crop on the
+        # whole image's grid, and a keypoint away from the box's edges is the whole image's
+        x0 = int(np.clip(np.floor(u.min()) - margin, 0, width)) // BOX_ALIGN * BOX_ALIGN
+        y0 = int(np.clip(np.floor(v.min()) - margin, 0, height)) // BOX_ALIGN * BOX_ALIGN
+        x1 = int(np.clip(np.ceil(u.max()) + margin + 1, 0, width))
+        y1 = int(np.clip(np.ceil(v.max()) + margin + 1, 0, height))
+        boxes[name] = (x0, y0, x1, y1)
+    return boxes
+
+
+def sift_extractor(config: SfMConfig):
+    """OpenCV's SIFT as :func:`extract` runs it (see :func:`_opencv_features`)."""
+    return cv2.SIFT_create(nfeatures=config.max_num_features,
+                           contrastThreshold=config.opencv_contrast,
+                           enable_precise_upscale=True)
+
+
+def image_features(gray: np.ndarray, sift, config: SfMConfig,
+                   box: tuple[int, int, int, int] | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """SIFT keypoints of one grey image as COLMAP rows (n, 6) in the whole image's COLMAP pixel
+    coordinates, and their float descriptors (n, 128); only inside ``box`` (x0, y0, x1, y1) when
+    given. Images larger than ``config.max_image_size`` are searched downscaled."""
+    factor = min(1.0, config.max_image_size / max(gray.shape))
+    x0, y0, x1, y1 = box if box is not None else (0, 0, gray.shape[1], gray.shape[0])
+    gray = np.ascontiguousarray(gray[y0:y1, x0:x1])
+    if factor < 1.0 and gray.size:
+        gray = cv2.resize(gray, None, fx=factor, fy=factor, interpolation=cv2.INTER_AREA)
+    kps, desc = sift.detectAndCompute(gray, None) if gray.size else ((), None)
+    if desc is None:
+        kps, desc = (), np.zeros((0, 128), np.float32)
+    rows = _colmap_keypoints(kps, factor)
+    rows[:, 0] += x0
+    rows[:, 1] += y0
+    return rows, desc
+
+
+def _opencv_features(image_set: ImageSet, database_path: Path, config: SfMConfig,
+                     boxes: dict[str, tuple[int, int, int, int]] | None = None) -> None:
     """Replace the keypoints and descriptors of every image of a COLMAP database by OpenCV's
     SIFT (upsampled first octave, as COLMAP's first_octave -1): about as many keypoints as
     COLMAP's at a third of its time on one core.
@@ -55,10 +132,18 @@ def _opencv_features(image_set: ImageSet, database_path: Path, config: SfMConfig
     height). With known poses that shift is a small tilt of every ray, which a point seen from
     one side only (the edges and sides of a thin link) turns into a 3D error that differs
     between the configurations: the pliers' handle rolled 0.85 deg about its length between A
-    and B, its axis 1.64 deg off the table normal."""
-    sift = cv2.SIFT_create(nfeatures=config.max_num_features,
-                           contrastThreshold=config.opencv_contrast,
-                           enable_precise_upscale=True)
+    and B, its axis 1.64 deg off the table normal.
+
+    ``boxes`` (:func:`region_boxes`): an image named there is searched at full scale only inside
+    its box (the crop's keypoints are put back into the whole image's pixel coordinates), and
+    outside it only coarsely (:func:`_with_background`): the table and the room the base's
+    motion is anchored to."""
+    sift = sift_extractor(config)
+    background = None
+    if boxes is not None and config.background_features > 0:
+        background = cv2.SIFT_create(nfeatures=config.background_features,
+                                     contrastThreshold=config.opencv_contrast,
+                                     enable_precise_upscale=True)
     with pycolmap.Database.open(database_path) as db:
         images = db.read_all_images()
         db.clear_keypoints()
@@ -68,15 +153,29 @@ def _opencv_features(image_set: ImageSet, database_path: Path, config: SfMConfig
             gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
             if gray is None:
                 raise ReconstructionError(f"cannot read image {path}")
-            factor = min(1.0, config.max_image_size / max(gray.shape))
-            if factor < 1.0:
-                gray = cv2.resize(gray, None, fx=factor, fy=factor, interpolation=cv2.INTER_AREA)
-            kps, desc = sift.detectAndCompute(gray, None)
-            if desc is None:
-                kps, desc = (), np.zeros((0, 128), np.float32)
-            db.write_keypoints(img.image_id, _colmap_keypoints(kps, factor))
+            box = (boxes or {}).get(img.name)
+            rows, desc = image_features(gray, sift, config, box)
+            if box is not None and background is not None:
+                rows, desc = _with_background(gray, box, rows, desc, background, config)
+            db.write_keypoints(img.image_id, rows)
             db.write_descriptors(img.image_id, pycolmap.FeatureDescriptors(
                 pycolmap.FeatureExtractorType.SIFT, colmap_descriptors(desc)))
+
+
+def _with_background(gray, box, rows, desc, sift, config: SfMConfig):
+    """``rows, desc`` and the features of the image scaled by ``config.background_scale`` that
+    lie outside ``box`` (by more than the box's own features' reach, 8 px)."""
+    f = config.background_scale
+    small = cv2.resize(gray, None, fx=f, fy=f, interpolation=cv2.INTER_AREA)
+    kps, d = sift.detectAndCompute(small, None)
+    if d is None or not len(kps):
+        return rows, desc
+    r = _colmap_keypoints(kps, f)
+    x0, y0, x1, y1 = box
+    pad = 8
+    out = ((r[:, 0] < x0 - pad) | (r[:, 0] > x1 + pad) | (r[:, 1] < y0 - pad)
+           | (r[:, 1] > y1 + pad))
+    return np.concatenate([rows, r[out]]), np.concatenate([desc, d[out]])
 
 
 def _write_images(image_set: ImageSet, database_path: Path, intrinsics: Intrinsics) -> None:
@@ -106,7 +205,8 @@ def _write_images(image_set: ImageSet, database_path: Path, intrinsics: Intrinsi
 
 
 def extract(image_set: ImageSet, database_path: Path, intrinsics: Intrinsics | None,
-            config: SfMConfig) -> None:
+            config: SfMConfig, boxes: dict[str, tuple[int, int, int, int]] | None = None
+            ) -> None:
     """SIFT keypoints and descriptors of every image into a fresh COLMAP database.
 
     With ``config.extractor == "opencv"`` and known intrinsics the database's camera, rig,
@@ -114,17 +214,24 @@ def extract(image_set: ImageSet, database_path: Path, intrinsics: Intrinsics | N
     the features. Otherwise COLMAP's extractor makes the database (focal length from EXIF when
     there is one); with ``"opencv"`` it runs on tiny images (the cost of reading them) and
     OpenCV's SIFT then replaces its features.
+
+    ``boxes`` (:func:`region_boxes`, OpenCV's extractor only): each image's features only
+    inside its box, and up to ``config.background_features`` outside it, found in the image
+    scaled by ``config.background_scale``.
     """
     if config.extractor not in ("colmap", "opencv"):
         raise ValueError(f"SfMConfig.extractor: expected 'colmap' or 'opencv', got "
                          f"{config.extractor!r}")
+    if boxes is not None and config.extractor != "opencv":
+        raise ValueError("extract: features inside the object's region (boxes) need "
+                         "SfMConfig.extractor 'opencv'")
     if database_path.exists():
         database_path.unlink()
     if config.extractor == "opencv" and intrinsics is not None:
         # the camera is known: no image to read for EXIF, so the database is written directly
         # (COLMAP's extractor would read and decode every image once more, ~3 s for 121 images)
         _write_images(image_set, database_path, intrinsics)
-        _opencv_features(image_set, database_path, config)
+        _opencv_features(image_set, database_path, config, boxes)
         return
     reader = pycolmap.ImageReaderOptions()
     if intrinsics is not None:
@@ -153,7 +260,7 @@ def extract(image_set: ImageSet, database_path: Path, intrinsics: Intrinsics | N
                               camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
                               extraction_options=ext, device=pycolmap.Device.cpu)
     if config.extractor == "opencv":
-        _opencv_features(image_set, database_path, config)
+        _opencv_features(image_set, database_path, config, boxes)
 
 
 def read_features(database_path: Path) -> dict[str, tuple[int, np.ndarray, np.ndarray]]:

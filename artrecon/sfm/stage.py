@@ -23,7 +23,7 @@ import pycolmap
 from artrecon.io import ImageSet, Intrinsics
 from artrecon.procrustes import similarity_transform
 from artrecon.sfm.config import CALIBRATION_FILE, SfMConfig
-from artrecon.sfm.extraction import extract, read_features
+from artrecon.sfm.extraction import extract, read_features, region_boxes
 from artrecon.sfm.focal_check import check_given_focal, supported_focal
 from artrecon.sfm.mapping import map_calibrated, map_incremental, triangulate_known_poses
 from artrecon.sfm.pairs import match, select_pairs
@@ -188,7 +188,10 @@ def run_sfm(image_set: ImageSet, out_dir: str | Path, intrinsics: Intrinsics | N
         see :func:`~artrecon.sfm.extraction.extract` and :func:`camera_summary`).
     poses : dict of str to (4, 4) float, optional
         ``T_world_camera`` per image name (OpenCV). Given, the poses are held fixed and only
-        points are triangulated and refined (requires ``intrinsics``).
+        points are triangulated and refined (requires ``intrinsics``). With them, an
+        ``image_set.region`` (the object's, in the poses' frame) keeps each image's full-scale
+        features to the box around its projection (``config.region_margin_px``), with a few
+        coarse ones of the background beside them (``config.background_features``).
     config : SfMConfig
     seed : int
     progress : bool
@@ -223,7 +226,17 @@ def run_sfm(image_set: ImageSet, out_dir: str | Path, intrinsics: Intrinsics | N
     db_path = out_dir / "database.db"
     with colmap_log(out_dir / "colmap.log") as console:
         with clock("extract"):
-            extract(image_set, db_path, intrinsics, config)
+            boxes = None
+            if (poses is not None and image_set.region is not None
+                    and config.region_margin_px >= 0 and config.extractor == "opencv"):
+                boxes = region_boxes(image_set.region, poses, intrinsics, image_set.size,
+                                     config.region_margin_px)
+                share = np.mean([(x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in boxes.values()])
+                log.info("%s: features inside the object's region (%.0f%% of the image area "
+                         "on average), at most %d outside it at %.2f scale", image_set.root,
+                         100 * share / (image_set.size[0] * image_set.size[1]),
+                         config.background_features, config.background_scale)
+            extract(image_set, db_path, intrinsics, config, boxes)
         with clock("pairs"):
             feats = read_features(db_path)
             pairs = select_pairs(image_set.names, feats, config, seed, poses)

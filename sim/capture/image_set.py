@@ -248,7 +248,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
                             "elevation_deg": float(np.rad2deg(v.elevation)), "reason": v.reason}
                            for v in plan.unreachable]
             records = {
-                "cameras.json": _cameras_json(sc, config, rig, cam_images),
+                "cameras.json": _cameras_json(sc, config, rig, cam_images, plan),
                 "capture.json": _capture_json(sc, config, plan_cfg, plan, len(to_take), free,
                                               unreachable, kin, arm),
                 "ground_truth/poses.json": _poses_json(sc, config, joints_config, true_sphere,
@@ -315,8 +315,24 @@ def _truth_image(name: str, view: views.View, T_render, dp, dr, joints_now: dict
     }
 
 
-def _cameras_json(sc: Scene, config: str, rig: Rig, images: list[dict]) -> dict:
-    """cameras.json: the intrinsics and each image's FK poses (what artrecon reads)."""
+def object_region(plan: views.ViewPlan) -> dict:
+    """cameras.json's ``region`` (see :mod:`artrecon.io`): where the robot found the object, as
+    points whose convex hull holds it. The survey's hull (the convex hull of the visual hull it
+    carved from its own photographs, which holds the object); a plan without one gives the
+    corners of the cube around the survey's sphere."""
+    hull = (plan.survey or {}).get("hull_vertices")
+    if hull is not None and len(hull) >= 4:
+        return {"points": [[float(x) for x in p] for p in hull],
+                "source": "the survey's visual hull (convex hull of its voxels)"}
+    corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1], indexing="ij")).reshape(3, -1).T
+    points = np.asarray(plan.centre, float) + plan.radius * corners
+    return {"points": points.tolist(), "source": "the cube around the survey's sphere"}
+
+
+def _cameras_json(sc: Scene, config: str, rig: Rig, images: list[dict],
+                  plan: views.ViewPlan) -> dict:
+    """cameras.json: the intrinsics, each image's FK poses and where the object is (what
+    artrecon reads)."""
     return {
         "format": "artrecon-capture/1",
         "scene": sc.name,
@@ -326,6 +342,7 @@ def _cameras_json(sc: Scene, config: str, rig: Rig, images: list[dict]) -> dict:
         "width": rig.width, "height": rig.height, "K": as_list(rig.K),
         "joint_names": list(rig.kin.joint_names),
         "images": images,
+        "region": object_region(plan),
     }
 
 
