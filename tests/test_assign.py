@@ -232,6 +232,32 @@ def test_free_space_rejects_a_point_seen_through():
     assert vis[0].tolist() == [False, True, False]
 
 
+def test_the_z_buffer_is_each_cells_nearest_point():
+    """Known answer: each cell's depth is the smallest of the points projecting into it (cells
+    with none: the smallest of their 3 x 3 neighbours', else infinite), by a plain loop over the
+    points; points behind the camera or outside the image count nowhere."""
+    T = _camera(0.3, 0.2)
+    K = np.array([[F, 0, W / 2], [0, F, H / 2], [0, 0, 1]])
+    view = CameraView(K, T, np.zeros((H, W), np.float32))
+    rng = np.random.default_rng(5)
+    P = rng.uniform([-0.3, -0.2, -0.6], [0.9, 0.6, 0.7], (20000, 3))  # some behind (z > 0.5)
+    cell = 4
+    h, w = H // cell, W // cell
+    expected = np.full((h, w), np.inf)
+    u, v, z = view.project(P)
+    for uk, vk, zk in zip(u, v, z, strict=True):
+        if zk > 0 and 0 <= uk < w * cell and 0 <= vk < h * cell:
+            r, c = int(vk // cell), int(uk // cell)
+            expected[r, c] = min(expected[r, c], zk)
+    assert np.isfinite(expected).sum() > 1000 and (z <= 0).any() and (u > W).any()
+    holes = ~np.isfinite(expected)
+    padded = np.pad(expected, 1, constant_values=np.inf)
+    near = np.min([padded[1 + dr:1 + dr + h, 1 + dc:1 + dc + w]
+                   for dr in (-1, 0, 1) for dc in (-1, 0, 1)], axis=0)
+    expected[holes] = near[holes]
+    np.testing.assert_array_equal(_Surface([view], P, cell=cell).zbuf[0], expected)
+
+
 def test_free_space_is_not_seen_through_a_hole_in_a_wall():
     """A wall whose dense points have a hole a few cells wide, the room far behind it: a point
     just behind the wall, in line with the hole, was not seen through (the wall's points stop
