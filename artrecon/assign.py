@@ -214,10 +214,7 @@ class _Surface:
         for v in views:
             h, w = v.image.shape[0] // cell, v.image.shape[1] // cell
             u, vv, z = v.project(points)
-            with np.errstate(invalid="ignore"):
-                i = np.floor(u / cell)
-                j = np.floor(vv / cell)
-            ok = (z > 0) & (i >= 0) & (i < w) & (j >= 0) & (j < h)
+            i, j, ok = self._cell_floats(u, vv, z, w, h)
             # the cells as flat indices, of the points in view only: the same minima as
             # _cells' (row, column) pairs over every point, at half the time (0.9 M occluders
             # of scissors: 4.96 -> 2.74 CPU s for 30 views)
@@ -229,11 +226,17 @@ class _Surface:
             self.znear.append(minimum_filter(self.zbuf[-1], window) if window > 1
                               else self.zbuf[-1])
 
-    def _cells(self, u, v, z, w, h):
+    def _cell_floats(self, u, v, z, w, h):
+        """Column and row (floats, floored) of each pixel's cell, and whether the point is in
+        front of the camera and inside the (w, h) cells."""
         with np.errstate(invalid="ignore"):
             i = np.floor(u / self.cell)
             j = np.floor(v / self.cell)
-        ok = (z > 0) & (i >= 0) & (i < w) & (j >= 0) & (j < h)
+        return i, j, (z > 0) & (i >= 0) & (i < w) & (j >= 0) & (j < h)
+
+    def _cells(self, u, v, z, w, h):
+        """:meth:`_cell_floats` as int64 indices, 0 where the point is not in view."""
+        i, j, ok = self._cell_floats(u, v, z, w, h)
         return np.where(ok, i, 0).astype(np.int64), np.where(ok, j, 0).astype(np.int64), ok
 
     def status(self, X: np.ndarray, rel: float, floor: float):

@@ -107,9 +107,7 @@ def test_background_features_outside_the_box_sit_where_the_image_has_them():
     box = (256, 192, 400, 320)
     sift = extraction.sift_extractor(config)
     rows, desc = extraction.image_features(gray, sift, config, box)
-    background = cv2.SIFT_create(nfeatures=config.background_features,
-                                 contrastThreshold=config.opencv_contrast,
-                                 enable_precise_upscale=True)
+    background = extraction.sift_extractor(config, config.background_features)
     both, both_desc = extraction._with_background(gray, box, rows, desc, background, config)
     assert len(both) == len(both_desc) and len(both) > len(rows)
     np.testing.assert_array_equal(both[:len(rows)], rows)

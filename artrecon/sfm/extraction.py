@@ -92,9 +92,10 @@ def region_boxes(region: np.ndarray, poses: dict[str, np.ndarray], intrinsics: I
     return boxes
 
 
-def sift_extractor(config: SfMConfig):
-    """OpenCV's SIFT as :func:`extract` runs it (see :func:`_opencv_features`)."""
-    return cv2.SIFT_create(nfeatures=config.max_num_features,
+def sift_extractor(config: SfMConfig, features: int | None = None):
+    """OpenCV's SIFT as :func:`extract` runs it (see :func:`_opencv_features`), keeping at most
+    ``features`` keypoints (default ``config.max_num_features``)."""
+    return cv2.SIFT_create(nfeatures=config.max_num_features if features is None else features,
                            contrastThreshold=config.opencv_contrast,
                            enable_precise_upscale=True)
 
@@ -141,9 +142,7 @@ def _opencv_features(image_set: ImageSet, database_path: Path, config: SfMConfig
     sift = sift_extractor(config)
     background = None
     if boxes is not None and config.background_features > 0:
-        background = cv2.SIFT_create(nfeatures=config.background_features,
-                                     contrastThreshold=config.opencv_contrast,
-                                     enable_precise_upscale=True)
+        background = sift_extractor(config, config.background_features)
     with pycolmap.Database.open(database_path) as db:
         images = db.read_all_images()
         db.clear_keypoints()

@@ -185,13 +185,13 @@ class PlanningWorld:
         return out
 
     def _past_own_spheres(self, point: np.ndarray, normal: np.ndarray, start: float,
-                          spheres: tuple | None = None) -> float:
+                          spheres: tuple) -> float:
         """Where a ray from ``point`` along ``normal`` starts: ``start`` out, or beyond the model
         spheres that hold that start (the surface's own layer of spheres, each up to a sphere's
         radius plus the points' noise off the surface: a ray begun inside one meets it at
         distance 0 and calls the surface's own noise an obstacle in front of it). ``spheres``:
         the model spheres' (KD-tree of centres, centres, radii), as :meth:`_model_spheres`."""
-        tree, centres, radius = spheres if spheres is not None else self._model_spheres()
+        tree, centres, radius = spheres
         if tree is None:
             return start
         for _ in range(4):
