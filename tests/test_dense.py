@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from render_fixture import align_to_truth
@@ -182,6 +183,35 @@ def test_object_region_keeps_a_thin_object_lying_on_the_table():
     mask = dense.object_region(pts, c, axes)
     assert mask[len(table):].mean() > 0.95  # both halves, the lower one included
     assert mask[:len(table)].mean() < 0.01
+
+
+def test_disparity_range_ends_at_the_nearest_shared_point():
+    """Two parallel cameras 5 cm apart (f 500 px), shared points at 0.3 m and 2 m: the range's
+    near end is the nearest points' true disparity (f b / Z = 83.3 px) and its margin, not twice
+    it (the doubled end searched empty space down to 0.15 m); its far end keeps the doubled
+    disparity of the farthest points (2 x 12.5 px, the stereo's depth filter: nothing beyond
+    about 1 m), both widened by the 8 px margin."""
+    K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
+    f, b = 500.0, 0.05
+    views = []
+    for x in (0.0, b):  # camera j to the right of camera i
+        T = np.eye(4)
+        T[0, 3] = -x
+        views.append(dense._View("v", K, T, np.array([x, 0, 0]), np.array([0, 0, 1.0]), set()))
+    no_dist = np.zeros(5)
+    T_ji = views[1].T_cw @ np.linalg.inv(views[0].T_cw)
+    R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(K, no_dist, K, no_dist, (640, 480),
+                                                T_ji[:3, :3].copy(), T_ji[:3, 3].reshape(3, 1),
+                                                flags=cv2.CALIB_ZERO_DISPARITY, alpha=-1)
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-0.05, 0.05, (400, 2))
+    Z = np.repeat([0.3, 2.0], 200)
+    sparse = np.column_stack([xy * Z[:, None], Z])
+    lo, num = dense._disparity_range(views[0], views[1], R1, R2, P1, P2, sparse, 8.0)
+    assert lo == int(np.floor(2 * f * b / 2.0 - 8))
+    near = f * b / 0.3
+    assert near + 8 <= lo + num < near + 8 + 16
+    assert lo + num < 2 * near
 
 
 @pytest.mark.slow
