@@ -214,9 +214,10 @@ def _disparity_range(vi: _View, vj: _View, R1, R2, P1, P2, sparse: np.ndarray,
     # for bit and as many of them).
     Xi = (vi.T_cw[:3, :3] @ sparse.T).T + vi.T_cw[:3, 3]
     Xj = (vj.T_cw[:3, :3] @ sparse.T).T + vj.T_cw[:3, 3]
-    xl = (P1[:, :3] @ (R1 @ Xi.T)).T
+    rect_i = R1 @ Xi.T  # the points in the first rectified frame
+    xl = (P1[:, :3] @ rect_i).T
     xr = (P2[:, :3] @ (R2 @ Xj.T)).T + P2[:, 3]
-    xt = (P2[:, :3] @ (R1 @ Xi.T)).T + P2[:, 3]
+    xt = (P2[:, :3] @ rect_i).T + P2[:, 3]
     left_x = xl[:, 0] / xl[:, 2]
     lo = float(np.percentile(left_x - xr[:, 0] / xr[:, 2], 1))
     hi = float(np.percentile(left_x - xt[:, 0] / xt[:, 2], 99))
