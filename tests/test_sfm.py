@@ -7,6 +7,7 @@ import json
 import cv2
 import numpy as np
 import pytest
+import render_fixture as rf
 from render_fixture import align_to_truth, camera_centres
 
 from artrecon import io, sfm
@@ -138,6 +139,41 @@ def test_sfm_from_images_recovers_camera_poses(rendered, reconstruction_sfm):
         world = S.apply(np.array([centres[n] for n in truth.names]))
         az = np.unwrap(np.arctan2(world[:18, 1], world[:18, 0]))
         assert np.all(np.diff(az) > 0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("missed", [False, True])
+def test_self_calibration_keeps_the_first_pass_cameras_unless_it_missed_images(
+        rendered, tmp_path, monkeypatch, missed):
+    """Self-calibration's second pass (focal length held): the first pass's cameras are kept and
+    the points triangulated again when it registered every image; with an image it could not
+    register (noise among one ring of the hinge), incremental mapping runs again from scratch,
+    which may register it. Either way every view of the ring registers and the focal length is
+    the renderer's."""
+    import shutil
+
+    from artrecon.sfm import mapping
+
+    calls = []
+    for name in ("map_incremental", "_retriangulate"):
+        real = getattr(mapping, name)
+        monkeypatch.setattr(mapping, name, lambda *a, _real=real, _name=name, **k:
+                            calls.append(_name) or _real(*a, **k))
+    folder = tmp_path / "img"
+    folder.mkdir()
+    ring = rendered["a"].names[:18]  # the lower ring, 20 degrees apart
+    for name in ring:
+        shutil.copy(rendered["a"].folder / "images" / name, folder / name)
+    if missed:
+        noise = np.random.default_rng(0).integers(0, 256, (rf.HEIGHT, rf.WIDTH, 3), np.uint8)
+        cv2.imwrite(str(folder / "zz_noise.png"), noise)
+    result = sfm.run_sfm(io.load_image_folder(folder), tmp_path / "out", progress=False)
+    # the first pass's map_incremental is the stage's own; these are the second pass's calls
+    assert calls == (["map_incremental"] if missed else ["_retriangulate"])
+    registered = set(camera_centres(tmp_path / "out" / "sparse" / "0"))
+    assert registered == set(ring)
+    (camera,) = result.reconstruction.cameras.values()
+    assert abs(camera.mean_focal_length() / rf.FOCAL - 1) < 0.01
 
 
 @pytest.mark.slow
