@@ -18,6 +18,7 @@ import pycolmap
 
 from artrecon.errors import MismatchError
 from artrecon.sfm.config import SfMConfig
+from artrecon.sfm.mapping import adjustment_options
 
 
 def supported_focal(reconstruction: pycolmap.Reconstruction, config: SfMConfig) -> dict:
@@ -45,12 +46,7 @@ def supported_focal(reconstruction: pycolmap.Reconstruction, config: SfMConfig) 
     if len(cameras) != 1:
         return {}
     copy = pycolmap.Reconstruction(reconstruction)
-    options = pycolmap.BundleAdjustmentOptions()
-    options.refine_focal_length = True
-    options.refine_principal_point = False
-    options.refine_extra_params = False
-    options.print_summary = False
-    options.ceres.solver_options.num_threads = config.num_threads
+    options = adjustment_options(config, refine_focal_length=True)
     before = float(reconstruction.compute_mean_reprojection_error())
     pycolmap.bundle_adjustment(copy, options)
     given = float(cameras[0].mean_focal_length())

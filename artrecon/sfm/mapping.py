@@ -164,24 +164,39 @@ def _retriangulate(image_set: ImageSet, database_path: Path, out_dir: Path,
     """``rec``'s points triangulated again from its cameras with the database's (re-verified)
     matches, filtered and refined with the cameras held (as with known poses), then cameras and
     points adjusted together, the intrinsics held."""
+    rec = _triangulate(rec, image_set, database_path, out_dir, intrinsics, config, seed)
+    pycolmap.bundle_adjustment(rec, adjustment_options(config, refine_focal_length=False))
+    return rec
+
+
+def adjustment_options(config: SfMConfig, refine_focal_length: bool
+                       ) -> pycolmap.BundleAdjustmentOptions:
+    """A bundle adjustment of cameras and points, the principal point and distortion held, the
+    focal length refined or held, quiet, on ``config.num_threads``."""
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = refine_focal_length
+    options.refine_principal_point = False
+    options.refine_extra_params = False
+    options.print_summary = False
+    options.ceres.solver_options.num_threads = config.num_threads
+    return options
+
+
+def _triangulate(rec: pycolmap.Reconstruction, image_set: ImageSet, database_path: Path,
+                 out_dir: Path, intrinsics: Intrinsics, config: SfMConfig, seed: int
+                 ) -> pycolmap.Reconstruction:
+    """``rec``'s cameras held, its points (cleared) triangulated from the database's verified
+    matches, then filtered and refined in ``config.pose_ba_refinements`` rounds."""
     opts = _mapping_options(intrinsics, config, seed)
     opts.ba_global_max_refinements = config.pose_ba_refinements
     work = out_dir / "triangulation"
     work.mkdir(parents=True, exist_ok=True)
     try:
-        rec = pycolmap.triangulate_points(rec, database_path, image_set.image_dir, work,
-                                          clear_points=True, options=opts,
-                                          refine_intrinsics=False)
+        return pycolmap.triangulate_points(rec, database_path, image_set.image_dir, work,
+                                           clear_points=True, options=opts,
+                                           refine_intrinsics=False)
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    ba = pycolmap.BundleAdjustmentOptions()
-    ba.refine_focal_length = False
-    ba.refine_principal_point = False
-    ba.refine_extra_params = False
-    ba.print_summary = False
-    ba.ceres.solver_options.num_threads = config.num_threads
-    pycolmap.bundle_adjustment(rec, ba)
-    return rec
 
 
 def triangulate_known_poses(image_set: ImageSet, database_path: Path, out_dir: Path,
@@ -209,13 +224,7 @@ def triangulate_known_poses(image_set: ImageSet, database_path: Path, out_dir: P
             pose = pycolmap.Rigid3d(T_cw[:3, :])
             new = pycolmap.Image(name=img.name, camera_id=img.camera_id, image_id=img.image_id)
             rec.add_image_with_trivial_frame(new, pose)
-    opts = _mapping_options(intrinsics, config, seed)
-    opts.ba_global_max_refinements = config.pose_ba_refinements
-    work = out_dir / "triangulation"
-    work.mkdir(parents=True, exist_ok=True)
-    rec = pycolmap.triangulate_points(rec, database_path, image_set.image_dir, work,
-                                      clear_points=True, options=opts, refine_intrinsics=False)
-    shutil.rmtree(work, ignore_errors=True)
+    rec = _triangulate(rec, image_set, database_path, out_dir, intrinsics, config, seed)
     if rec.num_points3D() == 0:
         raise PoseMismatchError(
             f"triangulation with the given camera poses on {image_set.image_dir} gave no points: "
