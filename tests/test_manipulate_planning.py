@@ -230,3 +230,23 @@ def test_the_plan_starts_its_ik_again_from_home_when_the_arms_pose_gives_none(mo
     calls.clear()
     assert P.plan_candidate(pw, cand, est, 0.5, pw.q_home, 0) == (None, "refused")
     assert len(calls) == 1
+
+
+def test_tangents_are_an_orthonormal_frame_and_the_cross_products_of_numpy():
+    """The grasp planner's tangent frame: u, v unit, orthogonal to each other and to the
+    normal, (u, v, n) right-handed, and bit for bit the frame np.cross gave (the planner's
+    choices must not move with a faster cross product), near the pole too."""
+    rng = np.random.default_rng(3)
+    normals = rng.normal(size=(2000, 3))
+    normals[:200] = [0.01, -0.02, 1.0]  # |n_z| >= 0.9: the other reference axis
+    normals[200:400, 2] = -np.abs(normals[200:400, 2]) * 50
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    for n in normals:
+        u, v = C.tangents(n)
+        ref = np.array([0.0, 0.0, 1.0]) if abs(n[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        u0 = np.cross(n, ref)
+        u0 /= np.linalg.norm(u0)
+        assert np.array_equal(u, u0) and np.array_equal(v, np.cross(n, u0))
+        assert abs(u @ n) < 1e-12 and abs(v @ n) < 1e-12 and abs(u @ v) < 1e-12
+        assert np.linalg.norm(u) == pytest.approx(1.0) and np.linalg.norm(v) == pytest.approx(1.0)
+        assert np.cross(u, v) @ n == pytest.approx(1.0)

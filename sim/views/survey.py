@@ -165,18 +165,24 @@ def _carve(masks, cameras, K, width, height, lower, upper, config: SurveyConfig,
     for z in zs:  # slab by slab: a few hundred thousand points at a time
         P = np.c_[columns, np.full(len(columns), z)]
         seen = np.zeros(len(P), dtype=np.int32)
-        ok = np.ones(len(P), dtype=bool)
+        # the points no view has carved yet, in order: a carved point stays carved, so the
+        # later views project only these (most of the volume is carved by the first few views)
+        alive = np.arange(len(P))
         for mask, (A, b) in zip(masks, projections, strict=True):
-            h = P @ A.T + b
+            h = P[alive] @ A.T + b
             front = h[:, 2] > 1e-6
             zz = np.where(front, h[:, 2], 1.0)
             u = np.where(front, np.round(h[:, 0] / zz), -1).astype(np.int64)
             w = np.where(front, np.round(h[:, 1] / zz), -1).astype(np.int64)
             inimg = front & (u >= 0) & (u < width) & (w >= 0) & (w < height)
-            seen += inimg
-            ok[inimg] &= mask[w[inimg], u[inimg]]
-        keep = ok & (seen >= config.min_views)
-        if keep.any():
+            seen[alive] += inimg
+            carved = np.zeros(len(alive), dtype=bool)
+            carved[inimg] = ~mask[w[inimg], u[inimg]]
+            alive = alive[~carved]
+            if len(alive) == 0:
+                break
+        keep = alive[seen[alive] >= config.min_views]
+        if len(keep):
             kept.append(P[keep])
     return np.concatenate(kept) if kept else np.empty((0, 3))
 
