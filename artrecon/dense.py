@@ -301,7 +301,8 @@ def _zbuffer(u: np.ndarray, v: np.ndarray, z: np.ndarray, w: int, h: int) -> np.
 
 
 def _fuse_depths(P: np.ndarray, views: list[_View], Ks: list[np.ndarray], depth: dict,
-                 w: int, h: int, tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 w: int, h: int, tol: float, chunk: int = 1 << 17
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every point of ``P`` (n, 3) against every depth map (``depth``: view index -> (h, w)):
     how many views' depths agree with it (within ``tol`` of its depth), how many show a surface
     clearly behind it (looked through it), and which views agree, view-major ((views, n) bool:
@@ -310,21 +311,29 @@ def _fuse_depths(P: np.ndarray, views: list[_View], Ks: list[np.ndarray], depth:
 
     Only the points that project into a view are looked up there: a point outside it has no
     depth there (neither agrees nor is looked through), as before when the whole array was
-    compared against an infinite depth."""
+    compared against an infinite depth.
+
+    The points go through in blocks of ``chunk`` against every view: a block's dozen
+    temporaries stay in the processor's cache, where the whole cloud's (pliers at full
+    resolution: 1.3 M points) went through memory once per view and operation (5.8 -> 4.5 CPU
+    s over 121 views; the same figures, bit for bit)."""
     n = len(P)
     agree = np.zeros(n, dtype=np.int32)
     through = np.zeros(n, dtype=np.int32)
     vis = np.zeros((len(views), n), dtype=bool)
-    for k, Dk in depth.items():
-        u, v, z, inside = _project(views[k], Ks[k], P, w, h)
-        idx = np.flatnonzero(inside)
-        d = Dk.ravel()[v[idx] * w + u[idx]]
-        z = z[idx]
-        seen = np.isfinite(d)
-        ok = seen & (np.abs(d - z) < tol * z)
-        vis[k, idx] = ok
-        agree[idx] += ok
-        through[idx] += seen & (d > (1.0 + tol) * z)
+    for start in range(0, n, chunk):
+        block = P[start:start + chunk]
+        for k, Dk in depth.items():
+            u, v, z, inside = _project(views[k], Ks[k], block, w, h)
+            idx = np.flatnonzero(inside)
+            d = Dk.ravel()[v[idx] * w + u[idx]]
+            z = z[idx]
+            seen = np.isfinite(d)
+            ok = seen & (np.abs(d - z) < tol * z)
+            idx += start
+            vis[k, idx] = ok
+            agree[idx] += ok
+            through[idx] += seen & (d > (1.0 + tol) * z)
     return agree, through, vis
 
 

@@ -96,7 +96,8 @@ def test_support_plane_of_a_large_cloud_from_a_sample():
 
 def test_depth_fusion_counts_as_point_by_point():
     """The fusion of merged points against the depth maps (view-major, only the points inside
-    a view looked up) gives what comparing every point with every view's depth gives."""
+    a view looked up, the points in blocks of any size) gives what comparing every point with
+    every view's depth gives."""
     rng = np.random.default_rng(3)
     w, h = 40, 30
     K = np.array([[30.0, 0.0, 19.5], [0.0, 30.0, 14.5], [0.0, 0.0, 1.0]])
@@ -133,6 +134,11 @@ def test_depth_fusion_counts_as_point_by_point():
     np.testing.assert_array_equal(agree, ref_agree)
     np.testing.assert_array_equal(through, ref_through)
     np.testing.assert_array_equal(vis.T, ref_vis)
+    # in blocks (the last one short): the same, point by point
+    for chunk in (1, 7, 1000):
+        blocks = dense._fuse_depths(P, views, [K] * len(views), depth, w, h, tol, chunk=chunk)
+        for got, want in zip(blocks, (agree, through, vis), strict=True):
+            np.testing.assert_array_equal(got, want)
 
 
 def test_object_region_drops_table_and_walls():
