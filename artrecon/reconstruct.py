@@ -441,7 +441,9 @@ def _run(set_a, set_b, intr_a: Intrinsics | None, intr_b: Intrinsics | None, pos
             try:
                 confs["a"] = _configuration(*args["a"], progress)
                 future.result()
-            except KeyboardInterrupt:
+            except BaseException:
+                # Ctrl-C, or A failed: B's folder would not be used, and leaving the pool's
+                # block waited for B's whole SfM and dense stereo before the user saw A's error
                 workers.stop(pool)
                 raise
         if last == 0:

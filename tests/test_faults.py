@@ -167,6 +167,33 @@ def test_killed_and_interrupted_reconstructions_keep_the_old_result(rendered, tm
     assert len(ArticulatedModel.load(out / "model.json").joints) == 1
 
 
+def test_a_failed_configuration_stops_the_other_at_once(rendered, tmp_path, monkeypatch):
+    """Configuration A fails while B still runs in the second process: the error reaches the
+    user at once, B stopped (the pool's block waited for B's whole SfM and dense stereo
+    first), and no result or work folder is left."""
+    import importlib
+
+    import slow_tasks
+
+    from artrecon.errors import ReconstructionError
+
+    rec = importlib.import_module("artrecon.reconstruct")  # the module, not its function
+
+    mark = tmp_path / "b_finished"
+    monkeypatch.setenv("ARTRECON_TEST_B_MARK", str(mark))
+
+    def failing_a(*args):
+        raise ReconstructionError("configuration A: SfM registered 3 of 36 images (test)")
+
+    monkeypatch.setattr(rec, "_configuration", failing_a)
+    monkeypatch.setattr(rec, "_configuration_in_process", slow_tasks.slow_configuration_b)
+    with pytest.raises(ReconstructionError, match="registered 3 of 36"):
+        rec.reconstruct(rendered["a"].folder, rendered["b"].folder, poses=True,
+                        out_dir=tmp_path / "model", progress=False)
+    assert not mark.exists(), "A's error waited for B to finish"
+    assert not (tmp_path / "model").exists() and not list(tmp_path.glob(".model.tmp-*"))
+
+
 def test_a_ctrl_c_a_library_swallowed_still_stops_the_work():
     """Within interrupts_remembered a SIGINT raises KeyboardInterrupt and is remembered: when a
     library drops the exception (PyOpenGL sees a Ctrl-C in its argument conversion as a
