@@ -270,13 +270,21 @@ class PlanningWorld:
         return bool(grasp_normal is not None and dist < cfg.face_contact_radius
                     and contact_dist > -cfg.face_contact_depth)
 
+    def _contacts_now(self) -> None:
+        """The plan's world posed at its ``qpos`` and mocap bodies, and its contacts found:
+        MuJoCo's kinematics and collision detection, the part of ``mj_forward`` that the
+        contacts come from (not the dynamics and the constraint solver after it, which planning
+        never reads)."""
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_collision(self.model, self.data)
+
     def gripper_contacts(self, q) -> int:
         """How many contacts the gripper (the bodies below the flange) has with the model (every
         link; in a world planned on the true object, the object's geoms) at configuration
         ``q``, the allowed ones included (:meth:`arm_contacts`)."""
         m, d = self.model, self.data
         d.qpos[self.qidx] = q
-        mujoco.mj_forward(m, d)
+        self._contacts_now()
         return sum(1 for c in d.contact[: d.ncon]
                    if c.dist < 0
                    and {int(m.geom_bodyid[c.geom[0]]), int(m.geom_bodyid[c.geom[1]])}
@@ -315,7 +323,7 @@ class PlanningWorld:
         else:
             exempt = moving
         try:
-            mujoco.mj_forward(m, d)
+            self._contacts_now()
             out = []
             for c in d.contact[: d.ncon]:
                 if c.dist >= clearance:
