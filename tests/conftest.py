@@ -1,9 +1,9 @@
 """Fixtures shared across test modules.
 
 The rendered hinge fixture (:mod:`render_fixture`) and its two reconstructions are session-wide:
-defined here once, they are rendered and reconstructed once per session for every module that
-uses them (defined in each module, pytest treated them as distinct fixtures and rebuilt them per
-module: about 7 minutes of CI).
+defined here once, they are rendered and reconstructed once per run for every module that uses
+them (defined in each module, pytest treated them as distinct fixtures and rebuilt them per
+module: about 7 minutes of CI), by whichever xdist worker asks first (:func:`_once`).
 
 The suite runs on two pytest-xdist workers (``-n 2 --dist loadscope`` in pyproject.toml), a
 module at a time per worker, with one exception (:func:`pytest_xdist_make_scheduler`): the
@@ -12,7 +12,10 @@ scene, so that the nine scene evaluations spread over both workers instead of on
 all of them while the other runs out of work (CI at 369e9c3: 60 min, most of it that one module).
 """
 
+import fcntl
+import os
 import re
+import shutil
 
 import pytest
 import render_fixture
@@ -73,30 +76,61 @@ def pytest_xdist_make_scheduler(config, log):
     return SceneScopeScheduling(config, log)
 
 
+def _once(tmp_path_factory, name: str, build, load):
+    """``build(folder)`` once per test run, ``load(folder)`` in the other xdist workers.
+
+    A session fixture is per process: each of the suite's two workers rendered the hinge
+    fixture and ran its two reconstructions (about 75 s of CI's CPU, twice). The first worker
+    to ask builds into a folder both share, under an exclusive lock, and marks it done; the
+    other waits on the lock and reads the result. A build that fails leaves no mark, so the
+    next worker to ask builds again (and fails with its own error). Without xdist: built."""
+    if not os.environ.get("PYTEST_XDIST_WORKER"):
+        return build(tmp_path_factory.mktemp(name))
+    folder = tmp_path_factory.getbasetemp().parent / f"shared-{name}"
+    with open(f"{folder}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if (folder / ".done").is_file():
+            return load(folder)
+        shutil.rmtree(folder, ignore_errors=True)
+        folder.mkdir()
+        result = build(folder)
+        (folder / ".done").touch()
+        return result
+
+
 @pytest.fixture(scope="session")
 def rendered(tmp_path_factory):
-    """Configuration A and B of the hinge fixture, rendered once per session."""
-    root = tmp_path_factory.mktemp("hinge")
-    return {c: render_fixture.render_set(root / c, c, render_fixture.TEST_VIEWS)
-            for c in ("a", "b")}
+    """Configuration A and B of the hinge fixture, rendered once per run."""
+    def sets(root, render):
+        return {c: render_fixture.render_set(root / c, c, render_fixture.TEST_VIEWS,
+                                             render=render) for c in ("a", "b")}
+
+    return _once(tmp_path_factory, "hinge", lambda root: sets(root, True),
+                 lambda root: sets(root, False))
+
+
+def _reconstruction(tmp_path_factory, rendered, name: str, **kwargs):
+    from artrecon import reconstruct
+    from artrecon.model import ArticulatedModel
+
+    def build(root):
+        out = root / name
+        return reconstruct(rendered["a"].folder, rendered["b"].folder, out_dir=out,
+                           progress=False, **kwargs), out
+
+    def load(root):
+        return ArticulatedModel.load(root / name / "model.json"), root / name
+
+    return _once(tmp_path_factory, f"run-{name}", build, load)
 
 
 @pytest.fixture(scope="session")
 def reconstruction_sfm(rendered, tmp_path_factory):
     """The whole run, cameras from the images alone (the method's default)."""
-    from artrecon import reconstruct
-
-    out = tmp_path_factory.mktemp("run") / "sfm"
-    model = reconstruct(rendered["a"].folder, rendered["b"].folder, out_dir=out, progress=False)
-    return model, out
+    return _reconstruction(tmp_path_factory, rendered, "sfm")
 
 
 @pytest.fixture(scope="session")
 def reconstruction_poses(rendered, tmp_path_factory):
     """The whole run with the cameras' known poses (fast path)."""
-    from artrecon import reconstruct
-
-    out = tmp_path_factory.mktemp("run") / "poses"
-    model = reconstruct(rendered["a"].folder, rendered["b"].folder, poses=True, out_dir=out,
-                        progress=False)
-    return model, out
+    return _reconstruction(tmp_path_factory, rendered, "poses", poses=True)

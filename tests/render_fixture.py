@@ -180,26 +180,27 @@ def sample_object(parts: list[Part], spacing: float = 0.002) -> tuple[np.ndarray
 
 
 def render_set(folder: Path, config: str, n_views: int = 36, seed: int = 0,
-               write_poses: bool = True) -> FixtureSet:
-    """Render configuration ``config`` into ``folder/images`` and write ``folder/cameras.json``."""
+               write_poses: bool = True, render: bool = True) -> FixtureSet:
+    """Render configuration ``config`` into ``folder/images`` and write ``folder/cameras.json``;
+    with ``render=False`` only the truth of a set rendered there before (same arguments)."""
     import cv2
     import pyrender
 
     folder = Path(folder)
-    (folder / "images").mkdir(parents=True, exist_ok=True)
     parts = build_parts(config, seed)
+    poses = ring_poses(n_views)
+    names = [f"view_{i:03d}.png" for i in range(len(poses))]
+    if not render:
+        return FixtureSet(folder, names, poses, *sample_object(parts))
+    (folder / "images").mkdir(parents=True, exist_ok=True)
     scene = _pyrender_scene(parts)
     cam = pyrender.IntrinsicsCamera(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2] + 0.5, cy=K[1, 2] + 0.5,
                                     znear=0.02, zfar=5.0)
-    poses = ring_poses(n_views)
     node = scene.add(cam, pose=np.eye(4))
-    names = []
-    for i, T in enumerate(poses):
+    for name, T in zip(names, poses, strict=True):
         scene.set_pose(node, convert_camera_pose(T))
         color, _ = _renderer().render(scene, flags=pyrender.RenderFlags.FLAT)
-        name = f"view_{i:03d}.png"
         cv2.imwrite(str(folder / "images" / name), color[:, :, ::-1])
-        names.append(name)
     if write_poses:
         data = {"K": K.tolist(), "width": WIDTH, "height": HEIGHT,
                 "images": [{"name": n, "T_world_camera": T.tolist()} for n, T in
