@@ -14,3 +14,8 @@ def slow_configuration_b(*args) -> None:
     then leaves a mark (at ``$ARTRECON_TEST_B_MARK``)."""
     time.sleep(20.0)
     Path(os.environ["ARTRECON_TEST_B_MARK"]).write_text("B ran to its end")
+
+
+def rasteriser_threads() -> str | None:
+    """The worker's ``LP_NUM_THREADS`` (Mesa llvmpipe's rasteriser threads), None if unset."""
+    return os.environ.get("LP_NUM_THREADS")

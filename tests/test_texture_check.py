@@ -93,6 +93,46 @@ def test_sim_evaluate_stops_at_the_check_before_capturing(tmp_path):
     assert not cache.exists() or not any(cache.iterdir())  # nothing was captured
 
 
+def test_the_second_process_starts_before_the_texture_check(monkeypatch, tmp_path):
+    """The scene's second process is started before the texture check, so that its start
+    (about 1 s of imports) runs beside the check instead of after it, which delayed B's chain;
+    the worker gets one rasteriser thread while this process keeps its environment (it renders
+    the check itself); a failing check ends the scene there, and the worker with it."""
+    import contextlib
+    import os
+
+    import slow_tasks
+
+    from artrecon import workers
+    from sim import evaluate
+    from sim.evaluate import stages
+
+    real, pools, seen = stages.second_process, [], {}
+
+    @contextlib.contextmanager
+    def recording(ev):
+        with real(ev) as pool:
+            pools.append(pool)
+            yield pool
+
+    def check(scene):
+        (pool,) = pools
+        seen["processes"] = list(pool._processes.values())
+        seen["alive"] = [p.is_alive() for p in seen["processes"]]
+        seen["worker"] = workers.submit(pool, slow_tasks.rasteriser_threads).result()
+        seen["this"] = os.environ.get("LP_NUM_THREADS")
+        raise TextureError("part 'x' is too plain")
+
+    monkeypatch.delenv("LP_NUM_THREADS", raising=False)
+    monkeypatch.setattr(evaluate.runner, "second_process", recording)
+    monkeypatch.setattr(evaluate.runner, "check_texture", check)
+    result = evaluate.evaluate_scene("pliers", evaluate.EvalConfig(progress=False),
+                                     tmp_path / "eval")
+    assert result["error_stage"] == "texture_check" and "too plain" in result["error"]
+    assert seen["alive"] == [True] and seen["worker"] == "1" and seen["this"] is None
+    assert not any(p.is_alive() for p in seen["processes"])  # shut down with the scene
+
+
 def test_textured_mask_sees_texture_not_shading_or_edges():
     rng = np.random.default_rng(0)
     noise = (rng.random((120, 160, 3)) * 255).astype(np.uint8)

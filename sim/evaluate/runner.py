@@ -114,14 +114,15 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
     try:
         scene = load_scene(name)
         result["scene"] = scene.name
-        stage = "texture_check"  # a part too plain for features fails here, in seconds
-        check_texture(scene)
-        stage = "load"
-        scene = perturb.apply_motion(scene, ev.perturb.motion_deg, ev.perturb.motion_mm)
-        result["scene_file"] = str(scene.path)
-        scene_hash = cache.scene_hash(scene.path)
-        result["scene_hash"] = scene_hash
+        # the second process starts first: its start (imports) runs beside the texture check
         with second_process(ev) as pool:
+            stage = "texture_check"  # a part too plain for features fails here, in seconds
+            check_texture(scene)
+            stage = "load"
+            scene = perturb.apply_motion(scene, ev.perturb.motion_deg, ev.perturb.motion_mm)
+            result["scene_file"] = str(scene.path)
+            scene_hash = cache.scene_hash(scene.path)
+            result["scene_hash"] = scene_hash
             sets, keys, confs, capture_sets = {}, [], {}, {}
             stage = "capture_a"
             chains = configuration_chains(scene, ev, cache_root, scene_hash,

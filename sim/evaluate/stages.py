@@ -226,9 +226,19 @@ def second_process(ev: EvalConfig) -> Iterator[ProcessPoolExecutor | None]:
         yield None
         return
     # one core each: the CPU rasteriser's threads (read when a process first renders) and,
-    # in artrecon's per-configuration stage, BLAS and OpenCV (artrecon.configuration)
+    # in artrecon's per-configuration stage, BLAS and OpenCV (artrecon.configuration). The
+    # variable is set for the worker's start only: this process keeps the rasteriser threads
+    # it had (it may render first after this, e.g. the texture check).
+    saved = os.environ.get("LP_NUM_THREADS")
     os.environ.setdefault("LP_NUM_THREADS", "1")
-    pool = workers.pool(1)
+    try:
+        pool = workers.pool(1)
+        # the worker starts now (a pool starts its workers at the first submit), so that its
+        # start (about 1 s: its imports) runs beside this process's work until B's chain comes
+        workers.submit(pool, int)
+    finally:
+        if saved is None:
+            os.environ.pop("LP_NUM_THREADS", None)
     try:
         yield pool
     except KeyboardInterrupt:
