@@ -101,8 +101,6 @@ log = logging.getLogger(__name__)
 
 def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
     """Run and score one scene; never raises for a failing stage (``error`` says which)."""
-    freeze_code_keys()  # the stages are keyed by the code this process runs
-
     out_dir = Path(out_dir)
     cache_root = out_dir / "cache"
     result: dict = {"scene": name, "error": None, "error_stage": None, "timings_s": {},
@@ -112,10 +110,12 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
     stage = "load"
     t_scene = time.perf_counter()
     try:
-        scene = load_scene(name)
-        result["scene"] = scene.name
-        # the second process starts first: its start (imports) runs beside the texture check
+        # the second process starts first: its start (imports, its stage keys) runs beside this
+        # process's stage keys, the scene's loading and the texture check
         with second_process(ev) as pool:
+            freeze_code_keys()  # the stages are keyed by the code this process runs
+            scene = load_scene(name)
+            result["scene"] = scene.name
             stage = "texture_check"  # a part too plain for features fails here, in seconds
             check_texture(scene)
             stage = "load"

@@ -233,9 +233,10 @@ def second_process(ev: EvalConfig) -> Iterator[ProcessPoolExecutor | None]:
     os.environ.setdefault("LP_NUM_THREADS", "1")
     try:
         pool = workers.pool(1)
-        # the worker starts now (a pool starts its workers at the first submit), so that its
-        # start (about 1 s: its imports) runs beside this process's work until B's chain comes
-        workers.submit(pool, int)
+        # the worker starts now (a pool starts its workers at the first submit) and hashes its
+        # stages' code, which B's chain would do first: about 2 s (its imports 1, the hashes
+        # 0.8) beside this process's own start of the scene, not on B's chain
+        workers.submit(pool, freeze_code_keys)
     finally:
         if saved is None:
             os.environ.pop("LP_NUM_THREADS", None)
