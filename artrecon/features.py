@@ -23,6 +23,7 @@ import pycolmap
 from scipy.spatial import cKDTree
 
 from artrecon.errors import ReconstructionError
+from artrecon.geometry import group_sums
 from artrecon.workers import side_by_side
 
 log = logging.getLogger(__name__)
@@ -270,8 +271,7 @@ def point_descriptors(sfm, features: dict) -> PointDescriptors:
     pids = np.concatenate([f[0] for f in features.values()])
     desc = np.concatenate([f[1] for f in features.values()])
     ids, inv = np.unique(pids, return_inverse=True)
-    sums = np.zeros((len(ids), desc.shape[1]), np.float64)
-    np.add.at(sums, inv, desc)
+    sums = group_sums(inv, desc, len(ids))
     sums /= np.linalg.norm(sums, axis=1, keepdims=True) + 1e-12
     rec = sfm.reconstruction
     xyz = np.array([rec.points3D[int(i)].xyz for i in ids])

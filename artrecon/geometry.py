@@ -22,6 +22,7 @@ __all__ = [
     "invert_pose",
     "transform_points",
     "point_spacing",
+    "group_sums",
 ]
 
 
@@ -131,3 +132,15 @@ def point_spacing(points: np.ndarray, tree: cKDTree | None = None) -> float:
         return 0.0
     d, _ = (cKDTree(points) if tree is None else tree).query(points, k=2)
     return float(np.median(d[:, 1]))
+
+
+def group_sums(groups: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """(n, k) float64 sums of the rows of ``values`` (m, k) by their group (``groups``: (m,) ints
+    in [0, n)): ``np.add.at(out, groups, values)``, the same sums bit for bit (both add each
+    group's rows in their order, in float64), by one ``np.bincount`` per column, several times
+    faster than ``np.add.at`` on rows."""
+    values = np.asarray(values)
+    out = np.empty((n, values.shape[1]), np.float64)
+    for c in range(values.shape[1]):
+        out[:, c] = np.bincount(groups, weights=values[:, c], minlength=n)
+    return out
