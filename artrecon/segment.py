@@ -41,6 +41,7 @@ from artrecon.procrustes import (
     shared_scale_transforms,
     similarity_transform,
 )
+from artrecon.workers import side_by_side
 
 log = logging.getLogger(__name__)
 
@@ -362,9 +363,16 @@ def segment_links(
     floor = tol.ADAPTIVE_THRESHOLD_FLOOR * size_b
     min_size = min_link_size(config, n)
 
-    runs = [_sequential_ransac(pa, pb, thr, floor, size_a, min_size,
-                               np.random.default_rng(seed if r == 0 else [seed, r]), config)
-            for r in range(max(1, config.restarts))]
+    def run(r: int):
+        return _sequential_ransac(pa, pb, thr, floor, size_a, min_size,
+                                  np.random.default_rng(seed if r == 0 else [seed, r]), config)
+
+    # the runs are independent (each its own draws): half of them in a thread beside this one
+    # (their batches of hypotheses are numpy products that release the GIL), in their order
+    restarts = range(max(1, config.restarts))
+    even, odd = side_by_side(lambda: [run(r) for r in restarts[0::2]],
+                             lambda: [run(r) for r in restarts[1::2]])
+    runs = [even[r // 2] if r % 2 == 0 else odd[r // 2] for r in restarts]
     labels, transforms, thresholds, rms, hypotheses = runs[select_run(runs, pa, pb, floor,
                                                                       config)]
     seg = Segmentation(

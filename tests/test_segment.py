@@ -139,3 +139,38 @@ def test_restarts_keep_the_run_that_fits_its_links_best():
     assert select_run(runs[:2], obj.points_a, obj.points_b, 1e-6, cfg) == 1
     assert select_run([runs[1]], obj.points_a, obj.points_b, 1e-6, cfg) == 0
 
+
+
+def test_the_restarts_side_by_side_are_the_runs_in_their_order(monkeypatch):
+    """The restarts run half in a thread beside the other half: the runs reach the selection in
+    their own order (run r seeded from [seed, r], run 0 from the seed), and the links are the
+    ones a run of all restarts one after another in this thread gives, bit for bit."""
+    import artrecon.segment as seg_module
+
+    obj = make_object(5, "chain", ("revolute", "prismatic"), 90, 0.002, 0.2)
+    cfg = SegmentationConfig(restarts=5)
+    ran = seg_module._sequential_ransac
+    seen = []
+
+    def tagged(*args):
+        rng = args[6]
+        out = ran(*args)
+        return (*out[:4], out[4] + [rng.bit_generator.seed_seq.entropy])
+
+    def recording(runs, *args):
+        seen.extend(run[4][-1] for run in runs)
+        return select(runs, *args)
+
+    select = seg_module.select_run
+    monkeypatch.setattr(seg_module, "_sequential_ransac", tagged)
+    monkeypatch.setattr(seg_module, "select_run", recording)
+    threaded = segment_links(obj.points_a, obj.points_b, cfg, seed=11)
+    assert seen == [11, [11, 1], [11, 2], [11, 3], [11, 4]]
+    monkeypatch.setattr(seg_module, "side_by_side", lambda a, b: (a(), b()))
+    serial = segment_links(obj.points_a, obj.points_b, cfg, seed=11)
+    assert threaded.n_links >= 3
+    np.testing.assert_array_equal(threaded.labels, serial.labels)
+    for t, s in zip(threaded.transforms, serial.transforms, strict=True):
+        np.testing.assert_array_equal(t.rotation, s.rotation)
+        np.testing.assert_array_equal(t.translation, s.translation)
+        assert t.scale == s.scale
