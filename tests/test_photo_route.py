@@ -95,12 +95,14 @@ def test_plain_image_folders_self_calibrate(rendered, tmp_path, order):
 @pytest.mark.slow
 def test_wrong_intrinsics_are_blamed_on_the_intrinsics(rendered, tmp_path):
     """--intrinsics with twice the focal length: the message names the intrinsics (it said
-    'a folded or broken camera ring')."""
+    'a folded or broken camera ring'). The configurations one after the other: B's SfM in a
+    second process, stopped when A fails, was half of this test's CPU (that stop is
+    test_faults' ``test_a_failed_configuration_stops_the_other_at_once``)."""
     K = rf.K
     wrong = f"{2 * K[0, 0]},{2 * K[1, 1]},{K[0, 2]},{K[1, 2]}"
-    with pytest.raises(ReconstructionError) as info:
+    with pytest.raises(ReconstructionError) as info:  # jobs=1: A fails, B never starts
         reconstruct(rendered["a"].folder, rendered["b"].folder, intrinsics=wrong,
-                    out_dir=tmp_path / "o", progress=False)
+                    out_dir=tmp_path / "o", progress=False, jobs=1)
     msg = str(info.value)
     print(msg)
     assert "Likely cause: the intrinsics" in msg and "2.00 x" in msg and "folded" not in msg
@@ -122,9 +124,9 @@ def test_wrong_intrinsics_on_plain_folders_are_blamed_on_the_intrinsics(rendered
         _plain_copy(rendered[c], tmp_path / c)
     K = rf.K
     wrong = f"{2 * K[0, 0]},{2 * K[1, 1]},{K[0, 2]},{K[1, 2]}"
-    with pytest.raises(ReconstructionError) as info:
+    with pytest.raises(ReconstructionError) as info:  # jobs=1: A fails, B never starts
         reconstruct(tmp_path / "a", tmp_path / "b", intrinsics=wrong, out_dir=tmp_path / "o",
-                    progress=False)
+                    progress=False, jobs=1)
     msg = str(info.value)
     print(msg)
     assert not (tmp_path / "o").exists()
