@@ -338,17 +338,26 @@ def _fuse_depths(P: np.ndarray, views: list[_View], Ks: list[np.ndarray], depth:
 
 
 def _voxel_merge(P: np.ndarray, C: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
-    """Points (n, 3) and colours (n, 3) averaged per cubic voxel of edge ``voxel``."""
+    """Points (n, 3) and colours (n, 3) averaged per cubic voxel of edge ``voxel`` (float64;
+    the colours may be uint8: summed in float64, the same sums as of their float64 copies).
+
+    The voxels' linear indices are sorted as int32 when they fit (the same stable order as
+    int64's), and the colours are gathered as given: a full-resolution configuration merges
+    ~7 M stereo points, whose colours as float64, and their sorted copy, took 2 x 169 MB
+    (pliers A, in the pipeline: the dense step's time the same within its run-to-run spread,
+    21.5-22.1 against 21.4-23.5 CPU s; dense.ply the same bytes)."""
     keys = np.floor(P / voxel).astype(np.int64)
     keys -= keys.min(axis=0)
     dims = keys.max(axis=0) + 1
     lin = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
+    if int(np.prod(dims, dtype=np.float64)) < np.iinfo(np.int32).max:
+        lin = lin.astype(np.int32)
     order = np.argsort(lin, kind="stable")
     lin = lin[order]
     starts = np.flatnonzero(np.r_[True, lin[1:] != lin[:-1]])
     counts = np.diff(np.r_[starts, len(lin)])[:, None]
     Pm = np.add.reduceat(P[order], starts, axis=0) / counts
-    Cm = np.add.reduceat(C[order], starts, axis=0) / counts
+    Cm = np.add.reduceat(C[order], starts, axis=0, dtype=np.float64) / counts
     return Pm, Cm
 
 
@@ -458,7 +467,7 @@ def fused_points(sfm, config: DenseConfig = DenseConfig(), progress=None) -> Fus
     if not clouds:
         raise ReconstructionError("dense: stereo matching gave no points on any image pair")
     P = np.concatenate(clouds)
-    C = np.concatenate(colours).astype(float)
+    C = np.concatenate(colours)  # uint8: _voxel_merge averages them in float64
     # Merge on a voxel grid about 1.5 downsampled pixels wide at the cameras' distance, then check
     # every merged point against every depth map (depth fusion): views whose depth agrees see it;
     # a view that sees a surface clearly *behind* it looked through it (free space), as at the

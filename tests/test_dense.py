@@ -141,6 +141,36 @@ def test_depth_fusion_counts_as_point_by_point():
             np.testing.assert_array_equal(got, want)
 
 
+def _voxel_means(P, C, voxel):
+    """Per voxel, in the order of its (x, y, z) index, the mean point and colour: a plain loop."""
+    groups: dict[tuple, list] = {}
+    for key, p, c in zip(map(tuple, np.floor(P / voxel).astype(np.int64)), P, C, strict=True):
+        groups.setdefault(key, []).append((p, c))
+    means = [(np.mean([p for p, _ in g], axis=0), np.mean([c for _, c in g], axis=0))
+             for _, g in sorted(groups.items())]
+    return np.array([m[0] for m in means]), np.array([m[1] for m in means])
+
+
+def test_voxel_merge_averages_each_voxel():
+    """Known answer: the merged points and colours are each voxel's means (a plain loop), for
+    uint8 colours the same figures as for their float64 copies, bit for bit, and so on a grid
+    too large for int32 voxel indices (one point 1 km away)."""
+    rng = np.random.default_rng(3)
+    P = rng.uniform(-0.05, 0.05, (4000, 3))
+    C = rng.integers(0, 256, (4000, 3), dtype=np.uint8)
+    voxel = 0.01
+    for points in (P, np.r_[P, [[1e3, 1e3, 1e3]]]):
+        colours = C if len(points) == len(C) else np.r_[C, [[1, 2, 3]]].astype(np.uint8)
+        Pm, Cm = dense._voxel_merge(points, colours, voxel)
+        ref_p, ref_c = _voxel_means(points, colours, voxel)
+        assert len(Pm) == len(ref_p) > 100
+        np.testing.assert_allclose(Pm, ref_p, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(Cm, ref_c, rtol=1e-12)
+        Pf, Cf = dense._voxel_merge(points, colours.astype(float), voxel)
+        np.testing.assert_array_equal(Pm, Pf)
+        np.testing.assert_array_equal(Cm, Cf)
+
+
 def test_object_region_drops_table_and_walls():
     """A box on a table inside walls, seen by a ring of cameras: only the box is kept."""
     rng = np.random.default_rng(2)
