@@ -112,8 +112,10 @@ def stop(pool: ProcessPoolExecutor) -> None:
 def side_by_side(task_a: Callable[[], A], task_b: Callable[[], B]) -> tuple[A, B]:
     """``(task_a(), task_b())``, ``task_b`` in a thread beside this one: for the two
     configurations' independent work after their stage (free space, image reads, the labelling
-    cues), whose numpy, OpenCV and SciPy calls release the GIL. The tasks must not share
-    mutable state; each gives what it gives alone (the results do not depend on the threads).
+    cues) and for the two halves of independent work (the A x B retrieval's images, the
+    segmentation's restarts), whose numpy, OpenCV and SciPy calls release the GIL. The tasks
+    must not share mutable state; each gives what it gives alone (the results do not depend on
+    the threads).
     Run it under one BLAS and one OpenCV thread per task (the machine has two cores). An
     exception of either task is raised here, ``task_a``'s first, after both ended."""
     with ThreadPoolExecutor(1, thread_name_prefix="artrecon-b") as ex:

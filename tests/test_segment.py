@@ -140,7 +140,6 @@ def test_restarts_keep_the_run_that_fits_its_links_best():
     assert select_run([runs[1]], obj.points_a, obj.points_b, 1e-6, cfg) == 0
 
 
-
 def test_the_restarts_side_by_side_are_the_runs_in_their_order(monkeypatch):
     """The restarts run half in a thread beside the other half: the runs reach the selection in
     their own order (run r seeded from [seed, r], run 0 from the seed), and the links are the
