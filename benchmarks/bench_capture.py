@@ -98,7 +98,8 @@ def _write_pngs(out, tmp: Path) -> None:
     items = ((out.color, tmp / "c.png", "colour"),
              (capture_files.depth_png(out.depth), tmp / "d.png", "depth"),
              (capture_files.labels_png(out.labels), tmp / "l.png", "labels"))
-    if not hasattr(capture, "PNG_PARAMS"):  # the writer before 2fe836a took (array, path)
+    if not (hasattr(capture, "PNG_PARAMS") or hasattr(capture_files, "PNG_PARAMS")):
+        # the writer before 2fe836a took (array, path)
         items = tuple(i[:2] for i in items)
     capture_files.write_pngs(items)
 

@@ -14,6 +14,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from artrecon import assign
 from artrecon.assign import (
     AssignConfig,
     CameraView,
@@ -232,10 +233,14 @@ def test_free_space_rejects_a_point_seen_through():
     assert vis[0].tolist() == [False, True, False]
 
 
-def test_the_z_buffer_is_each_cells_nearest_point():
+@pytest.mark.parametrize("block", [None, 999])
+def test_the_z_buffer_is_each_cells_nearest_point(block, monkeypatch):
     """Known answer: each cell's depth is the smallest of the points projecting into it (cells
     with none: the smallest of their 3 x 3 neighbours', else infinite), by a plain loop over the
-    points; points behind the camera or outside the image count nowhere."""
+    points; points behind the camera or outside the image count nowhere. The same in one block
+    and in blocks of 999 points (the last one short)."""
+    if block is not None:
+        monkeypatch.setattr(assign, "ZBUFFER_BLOCK", block)
     T = _camera(0.3, 0.2)
     K = np.array([[F, 0, W / 2], [0, F, H / 2], [0, 0, 1]])
     view = CameraView(K, T, np.zeros((H, W), np.float32))
