@@ -52,6 +52,21 @@ class Tracks:
         return len(self.point)
 
 
+@dataclass(frozen=True)
+class _Observed:
+    """One configuration's observations with their cameras gathered once: each observation's
+    view rotation (k, 3, 3) and translation (k, 3), which every projection of the solve reads
+    (gathered per call they were a (k, 3, 3) copy each time)."""
+
+    tracks: Tracks
+    rotations: np.ndarray
+    translations: np.ndarray
+
+    @classmethod
+    def of(cls, views: Views, tracks: Tracks) -> _Observed:
+        return cls(tracks, views.rotations[tracks.view], views.translations[tracks.view])
+
+
 class Problem:
     """The least-squares problem: residuals, their Jacobians (analytic in the points and offsets,
     central differences in the few global parameters) and the normal equations with the points
@@ -64,6 +79,7 @@ class Problem:
         self.n = len(points)
         self.points0 = points
         self.ta, self.tb, self.va, self.vb = tracks_a, tracks_b, views_a, views_b
+        self.oa, self.ob = _Observed.of(views_a, tracks_a), _Observed.of(views_b, tracks_b)
         self.fa = views_a.focal[tracks_a.view]
         self.fb = views_b.focal[tracks_b.view]
         self.c2 = loss_scale ** 2
@@ -86,8 +102,8 @@ class Problem:
 
     def pixels(self, g, X, d) -> tuple[np.ndarray, np.ndarray]:
         """Pixel residuals (k, 2) of A's and B's observations."""
-        ra = project(self.va, self.ta, X) - self.ta.uv
-        rb = project(self.vb, self.tb, self._b_points(g, X, d)) - self.tb.uv
+        ra = _project(self.oa, X) - self.ta.uv
+        rb = _project(self.ob, self._b_points(g, X, d)) - self.tb.uv
         return ra * self.fa[:, None], rb * self.fb[:, None]
 
     def cost(self, g, X, d) -> float:
@@ -97,14 +113,14 @@ class Problem:
                      + 0.5 * np.sum(d * d / self.sigma_d[:, None] ** 2))
 
     # --- normal equations
-    def _information(self, views: Views, tracks: Tracks, X: np.ndarray, focal: np.ndarray,
+    def _information(self, observed: _Observed, X: np.ndarray, focal: np.ndarray,
                      sigma: np.ndarray, total) -> tuple[np.ndarray, np.ndarray]:
         """Per point, the Cauchy-weighted (3, 3) information of its observations in one
         configuration's images with respect to the observed point (world frame) and the
         matching right-hand side (3,): ``sum_o w_o J_o^T J_o`` and ``-sum_o w_o J_o^T r_o``."""
-        p, J = project_world(views, tracks, X)
+        p, J = _project_world(observed, X)
         s = focal / sigma
-        r = (p - tracks.uv) * s[:, None]
+        r = (p - observed.tracks.uv) * s[:, None]
         w = s * s / (1.0 + np.sum(r * r, 1) / self.c2)
         J0, J1 = J[:, 0], J[:, 1]
         # the (3, 3) information's six distinct entries and the right-hand side, one column
@@ -133,10 +149,10 @@ class Problem:
         n, G = self.n, self.kin.n_params
         H = np.zeros((n, 6, 6))
         bp = np.zeros((n, 6))
-        H[:, :3, :3], bp[:, :3] = self._information(self.va, self.ta, X, self.fa, self.sig_a,
+        H[:, :3, :3], bp[:, :3] = self._information(self.oa, X, self.fa, self.sig_a,
                                                     self.sum_a)
-        A, c = self._information(self.vb, self.tb, self._b_points(g, X, d), self.fb,
-                                 self.sig_b, self.sum_b)
+        A, c = self._information(self.ob, self._b_points(g, X, d), self.fb, self.sig_b,
+                                 self.sum_b)
         scale, rots, _ = self.kin.motions(g)
         M = scale * rots[self.labels]  # (n, 3, 3)
         Mt = M.transpose(0, 2, 1)
@@ -190,8 +206,18 @@ def project_world(views: Views, tracks: Tracks, X: np.ndarray
     with respect to the point in the world frame: the rows of the view's rotation less the
     coordinate times its third row, over the depth (the perspective division's derivative
     times the rotation, written out element-wise)."""
-    R = views.rotations[tracks.view]
-    xc = _camera_points(views, tracks, X, R)
+    return _project_world(_Observed.of(views, tracks), X)
+
+
+def project(views: Views, tracks: Tracks, X: np.ndarray) -> np.ndarray:
+    """Normalised image coordinates (k, 2) of the observed points."""
+    return _project(_Observed.of(views, tracks), X)
+
+
+def _project_world(observed: _Observed, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`project_world` with the cameras gathered."""
+    R = observed.rotations
+    xc = _camera_points(observed, X)
     z = xc[:, 2]
     z = np.where(np.abs(z) < 1e-9, 1e-9, z)
     p = xc[:, :2] / z[:, None]
@@ -199,19 +225,17 @@ def project_world(views: Views, tracks: Tracks, X: np.ndarray
     return p, J
 
 
-def _camera_points(views: Views, tracks: Tracks, X: np.ndarray, R: np.ndarray | None = None
-                   ) -> np.ndarray:
-    """The observed points (k, 3) in their views' camera frames (``R``: the observations'
-    rotations, when the caller has them)."""
-    R = views.rotations[tracks.view] if R is None else R
-    Xo = X[tracks.point]
+def _camera_points(observed: _Observed, X: np.ndarray) -> np.ndarray:
+    """The observed points (k, 3) in their views' camera frames."""
+    R = observed.rotations
+    Xo = X[observed.tracks.point]
     return (R[:, :, 0] * Xo[:, :1] + R[:, :, 1] * Xo[:, 1:2] + R[:, :, 2] * Xo[:, 2:]
-            + views.translations[tracks.view])
+            + observed.translations)
 
 
-def project(views: Views, tracks: Tracks, X: np.ndarray) -> np.ndarray:
-    """Normalised image coordinates (k, 2) of the observed points."""
-    xc = _camera_points(views, tracks, X)
+def _project(observed: _Observed, X: np.ndarray) -> np.ndarray:
+    """:func:`project` with the cameras gathered."""
+    xc = _camera_points(observed, X)
     z = xc[:, 2]
     z = np.where(np.abs(z) < 1e-9, 1e-9, z)
     return xc[:, :2] / z[:, None]
