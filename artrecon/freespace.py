@@ -152,8 +152,10 @@ def _project(view, X: np.ndarray):
     return u, v, z
 
 
-def _remap(image: np.ndarray, u: np.ndarray, v: np.ndarray, interpolation: int) -> np.ndarray:
-    """``image`` (h, w[, c]) at the pixels (u, v) of any shape (outside: 0), float32."""
+def _remap(image: np.ndarray, u: np.ndarray, v: np.ndarray, interpolation: int,
+           as_float: bool = True) -> np.ndarray:
+    """``image`` (h, w[, c]) at the pixels (u, v) of any shape (outside: 0), float32 (or in the
+    image's own type: ``as_float`` False)."""
     shape = np.shape(u)
     n = int(np.prod(shape))
     width = 1024  # remap's maps must stay under 32767 rows and columns
@@ -165,21 +167,29 @@ def _remap(image: np.ndarray, u: np.ndarray, v: np.ndarray, interpolation: int) 
     out = cv2.remap(image, mu.reshape(rows, width), mv.reshape(rows, width), interpolation,
                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     out = out.reshape(rows * width, -1)[:n]
-    return out.reshape(*shape, *image.shape[2:]).astype(np.float32)
+    out = out.reshape(*shape, *image.shape[2:])
+    return out.astype(np.float32) if as_float else out
 
 
-def _sample(image: np.ndarray, u: np.ndarray, v: np.ndarray, z: np.ndarray):
-    """Bilinear RGB (..., 3) float32 at pixels (u, v) and whether each is inside the image."""
+def _sample(image: np.ndarray, u: np.ndarray, v: np.ndarray, z: np.ndarray,
+            as_float: bool = True):
+    """Bilinear RGB (..., 3) float32 (``as_float`` False: the image's type) at pixels (u, v)
+    and whether each is inside the image."""
     h, w = image.shape[:2]
     ok = (z > 0) & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-    return _remap(image, np.where(ok, u, -1), np.where(ok, v, -1), cv2.INTER_LINEAR), ok
+    return _remap(image, np.where(ok, u, -1), np.where(ok, v, -1), cv2.INTER_LINEAR,
+                  as_float), ok
 
 
 def _stack(views, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Colours (views, *P.shape[:-1], 3) of points P in every view, and where they are known."""
+    """Colours (views, *P.shape[:-1], 3) of points P in every view, and where they are known.
+    uint8 when the images are (OpenCV's bilinear sampling of a uint8 image rounds to uint8: the
+    float32 figures are those integers), a quarter of float32's memory for the mosaic's views x
+    cells; float32 otherwise."""
     cols, oks = [], []
     for view in views:
-        c, ok = _sample(view.colour, *_project(view, P))
+        c, ok = _sample(view.colour, *_project(view, P),
+                        as_float=np.asarray(view.colour).dtype != np.uint8)
         cols.append(c)
         oks.append(ok)
     return np.stack(cols), np.stack(oks)
@@ -215,8 +225,29 @@ def _agreeing(cols: np.ndarray, oks: np.ndarray, colour: np.ndarray,
 
 
 def _median(cols: np.ndarray, oks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per place, the median colour over the views that see it, and their number."""
-    return nanmedian0(np.where(oks[..., None], cols, np.nan)), oks.sum(0)
+    """Per place, the median colour (float32) over the views that see it, and their number."""
+    count = oks.sum(0)
+    if cols.dtype == np.uint8:
+        return _median_uint8(cols, oks, count), count
+    return nanmedian0(np.where(oks[..., None], cols, np.nan)), count
+
+
+def _median_uint8(cols: np.ndarray, oks: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """:func:`nanmedian0` of the uint8 colours ``cols`` (views, ..., 3) where ``oks``, as
+    float32, the same figures bit for bit: the views unseen get the key 256 (sorted last, as
+    NaN), the sort runs on uint16 keys (half of float32's memory), the two middle values are
+    whole numbers, so their float32 mean is exact either way."""
+    keys = np.where(oks[..., None], cols, np.uint16(256))
+    srt = np.sort(np.moveaxis(keys, 0, -1), axis=-1)
+    n = srt.shape[-1]
+    cnt = np.broadcast_to(count[..., None], srt.shape[:-1])
+    h = cnt // 2
+    low = np.where(cnt % 2 == 1, h, h - 1)
+    lo = np.take_along_axis(srt, np.maximum(low, 0)[..., None], -1)[..., 0]
+    hi = np.take_along_axis(srt, np.minimum(h, n - 1)[..., None], -1)[..., 0]
+    med = (lo.astype(np.float32) + hi.astype(np.float32)) / np.float32(2)
+    med[cnt == 0] = np.nan
+    return med
 
 
 #: Offsets of the height search whose samples the views project together (memory: views x
