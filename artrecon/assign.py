@@ -167,15 +167,44 @@ class CameraView:
         return u, v, z
 
 
+#: libpng's RGB -> grey weights in its 15-bit fixed point, as OpenCV's PNG reader asks for them
+#: (``png_set_rgb_to_gray(png, 1, 0.299, 0.587)``: red and green truncated, blue the rest).
+_PNG_GREY_WEIGHTS = (9797, 19234, 3737)
+
+
+def png_grey(bgr: np.ndarray) -> np.ndarray:
+    """The grey image ``cv2.imread(path, cv2.IMREAD_GRAYSCALE)`` decodes from an 8-bit colour
+    PNG, computed from its colour decode (``IMREAD_COLOR``, BGR): libpng's fixed-point weights,
+    the sum truncated (not ``cv2.cvtColor``, which rounds and differs in 4 of 10 pixels)."""
+    wr, wg, wb = _PNG_GREY_WEIGHTS
+    b, g, r = (bgr[:, :, i].astype(np.uint32) for i in range(3))
+    return ((wr * r + wg * g + wb * b) >> 15).astype(np.uint8)
+
+
 def views_from_sfm(sfm) -> list[CameraView]:
     """The registered images of an :class:`artrecon.sfm.SfMResult`, grey and colour, full
-    resolution."""
+    resolution.
+
+    The grey image is the one OpenCV reads (``IMREAD_GRAYSCALE``: its PNG reader's own
+    conversion), not ``cvtColor`` of the colour one. For PNG images it is computed from the
+    colour decode (:func:`png_grey`) once the first PNG's own grey decode has confirmed the
+    formula on this machine's OpenCV (else every image is decoded twice, as before): one decode
+    per image instead of two."""
     poses = sfm.T_world_camera()
     views = []
+    png_formula = None  # png_grey confirmed on this set's first PNG (None: not checked yet)
     for name in sorted(poses):
-        img = cv2.imread(str(sfm.image_dir / name), cv2.IMREAD_COLOR)
-        # the grey image as OpenCV reads it (its own conversion), not converted from ``img``
-        grey = cv2.imread(str(sfm.image_dir / name), cv2.IMREAD_GRAYSCALE)
+        path = sfm.image_dir / name
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        grey = None
+        if img is not None and path.suffix.lower() == ".png" and png_formula is not False:
+            if png_formula is None:
+                grey = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+                png_formula = grey is not None and np.array_equal(grey, png_grey(img))
+            else:
+                grey = png_grey(img)
+        if grey is None:
+            grey = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         if img is None or grey is None:
             # a missing view would silently weaken the labels (and change the tree)
             raise ReconstructionError(f"cannot read image {sfm.image_dir / name} of the "

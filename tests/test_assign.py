@@ -454,6 +454,58 @@ def test_an_unreadable_view_is_refused_not_skipped(tmp_path):
     assert len(views_from_sfm(sfm)) == 2
 
 
+def _colour_pngs(folder, count, rng):
+    """``count`` 8-bit colour PNGs of noise, smooth ramps and grey pixels (r = g = b)."""
+    import cv2
+
+    names = []
+    for k in range(count):
+        img = rng.integers(0, 256, (H, W, 3), dtype=np.uint8)
+        img[: H // 3] = np.linspace(0, 255, W, dtype=np.uint8)[None, :, None]  # grey ramp
+        img[H // 3: H // 2, :, 1] = np.linspace(255, 0, W, dtype=np.uint8)[None]
+        names.append(f"{k:03d}.png")
+        cv2.imwrite(str(folder / names[-1]), img)
+    return names
+
+
+def test_the_png_grey_formula_is_opencvs_own_grey_decode(tmp_path):
+    """png_grey of a PNG's colour decode is OpenCV's IMREAD_GRAYSCALE decode of it, bit for bit
+    (libpng's conversion; cvtColor's differs), on noise, ramps and grey pixels."""
+    import cv2
+
+    from artrecon.assign import png_grey
+
+    for name in _colour_pngs(tmp_path, 3, np.random.default_rng(7)):
+        colour = cv2.imread(str(tmp_path / name), cv2.IMREAD_COLOR)
+        own = cv2.imread(str(tmp_path / name), cv2.IMREAD_GRAYSCALE)
+        assert np.array_equal(png_grey(colour), own)
+        assert not np.array_equal(cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY), own)
+
+
+@pytest.mark.parametrize("formula_holds", [True, False])
+def test_the_views_grey_images_are_opencvs_grey_decodes(tmp_path, monkeypatch, formula_holds):
+    """views_from_sfm's grey images equal OpenCV's IMREAD_GRAYSCALE decodes: through the
+    formula once the first image confirmed it, through a second decode of every image when it
+    did not (a formula made wrong here)."""
+    import cv2
+
+    from artrecon import assign
+
+    names = _colour_pngs(tmp_path, 4, np.random.default_rng(8))
+    if not formula_holds:
+        monkeypatch.setattr(assign, "png_grey", lambda bgr: np.zeros(bgr.shape[:2], np.uint8))
+    sfm = SimpleNamespace(image_dir=tmp_path,
+                          T_world_camera=lambda: {n: np.eye(4) for n in names},
+                          intrinsics=lambda name: np.array([[F, 0, W / 2], [0, F, H / 2],
+                                                            [0, 0, 1.0]]))
+    views = assign.views_from_sfm(sfm)
+    for name, view in zip(names, views, strict=True):
+        own = cv2.imread(str(tmp_path / name), cv2.IMREAD_GRAYSCALE).astype(np.float32)
+        assert view.image.dtype == np.float32 and np.array_equal(view.image, own)
+        assert np.array_equal(view.colour,
+                              cv2.imread(str(tmp_path / name), cv2.IMREAD_COLOR)[:, :, ::-1])
+
+
 def test_table_keeps_a_thin_strip_of_the_base_under_another_link():
     """A wall (x along it, z up), points 2 mm apart: its lowest two rows (z < 5 mm) are the base
     (link 0), the nine rows above another link (1); the table is below. Both links' motions
