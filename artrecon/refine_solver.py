@@ -200,22 +200,11 @@ def aggregator(index: np.ndarray, n: int):
     return total
 
 
-def project_world(views: Views, tracks: Tracks, X: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def _project_world(observed: _Observed, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Normalised image coordinates (k, 2) of the observed points and their derivative (k, 2, 3)
     with respect to the point in the world frame: the rows of the view's rotation less the
     coordinate times its third row, over the depth (the perspective division's derivative
     times the rotation, written out element-wise)."""
-    return _project_world(_Observed.of(views, tracks), X)
-
-
-def project(views: Views, tracks: Tracks, X: np.ndarray) -> np.ndarray:
-    """Normalised image coordinates (k, 2) of the observed points."""
-    return _project(_Observed.of(views, tracks), X)
-
-
-def _project_world(observed: _Observed, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`project_world` with the cameras gathered."""
     R = observed.rotations
     xc = _camera_points(observed, X)
     z = xc[:, 2]
@@ -234,7 +223,7 @@ def _camera_points(observed: _Observed, X: np.ndarray) -> np.ndarray:
 
 
 def _project(observed: _Observed, X: np.ndarray) -> np.ndarray:
-    """:func:`project` with the cameras gathered."""
+    """Normalised image coordinates (k, 2) of the observed points."""
     xc = _camera_points(observed, X)
     z = xc[:, 2]
     z = np.where(np.abs(z) < 1e-9, 1e-9, z)
