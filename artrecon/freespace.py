@@ -200,17 +200,23 @@ def nanmedian0(x: np.ndarray) -> np.ndarray:
     values in ``x``'s own float type; NaN where a column has no value), without numpy's masked
     array route for short axes (about 20 times slower on the mosaic's views x cells)."""
     x = np.asarray(x)
-    n = x.shape[0]
-    if n == 0:
+    if x.shape[0] == 0:
         return np.full(x.shape[1:], np.nan, x.dtype)
     last = np.moveaxis(x, 0, -1)
     srt = np.sort(last, axis=-1)  # NaN sort last
-    cnt = np.sum(~np.isnan(last), axis=-1)
+    return _middle_of_sorted(srt, np.sum(~np.isnan(last), axis=-1), x.dtype.type)
+
+
+def _middle_of_sorted(srt: np.ndarray, cnt: np.ndarray, dtype) -> np.ndarray:
+    """The median of the first ``cnt`` values of each row of ``srt`` (sorted along its last
+    axis, the values that do not count after them): the mean of the two middle values in
+    ``dtype`` (their middle value for an odd count), NaN where ``cnt`` is 0."""
+    n = srt.shape[-1]
     h = cnt // 2
     low = np.where(cnt % 2 == 1, h, h - 1)
     lo = np.take_along_axis(srt, np.maximum(low, 0)[..., None], -1)[..., 0]
     hi = np.take_along_axis(srt, np.minimum(h, n - 1)[..., None], -1)[..., 0]
-    med = np.asarray((lo + hi) / x.dtype.type(2))
+    med = np.asarray((lo.astype(dtype, copy=False) + hi.astype(dtype, copy=False)) / dtype(2))
     med[cnt == 0] = np.nan
     return med
 
@@ -239,15 +245,8 @@ def _median_uint8(cols: np.ndarray, oks: np.ndarray, count: np.ndarray) -> np.nd
     whole numbers, so their float32 mean is exact either way."""
     keys = np.where(oks[..., None], cols, np.uint16(256))
     srt = np.sort(np.moveaxis(keys, 0, -1), axis=-1)
-    n = srt.shape[-1]
-    cnt = np.broadcast_to(count[..., None], srt.shape[:-1])
-    h = cnt // 2
-    low = np.where(cnt % 2 == 1, h, h - 1)
-    lo = np.take_along_axis(srt, np.maximum(low, 0)[..., None], -1)[..., 0]
-    hi = np.take_along_axis(srt, np.minimum(h, n - 1)[..., None], -1)[..., 0]
-    med = (lo.astype(np.float32) + hi.astype(np.float32)) / np.float32(2)
-    med[cnt == 0] = np.nan
-    return med
+    return _middle_of_sorted(srt, np.broadcast_to(count[..., None], srt.shape[:-1]),
+                             np.float32)
 
 
 #: Offsets of the height search whose samples the views project together (memory: views x
