@@ -26,9 +26,15 @@ exactly what ``python -m sim.evaluate`` runs, and prints:
 - the process's CPU seconds (user + system, children included), which other load on the machine
   inflates much less than the wall time.
 
-One JSON line per scene (``BENCH {...}``), then a table. ``--photo-route SCENE`` also times the
-route without poses on that scene's captures: the images alone, copied into plain folders (no
-``cameras.json``: focal length unknown, SfM from the images), through ``artrecon.reconstruct``.
+One JSON line per scene (``BENCH {...}``), then a table. Each line and the accuracy table also
+hold what the run's scoring measured against the truth (``accuracy``: per joint the axis
+direction's error in degrees, the axis position's in mm, the state's in degrees or mm; the
+segmentation accuracy), so that a lever that changes the results shows its cost beside its time.
+``--photo-route SCENE`` also times the route without poses on that scene's captures: the images
+alone, copied into plain folders (no ``cameras.json``: focal length unknown, SfM from the
+images), through ``artrecon.reconstruct``, and scores its joints the same way, the model brought
+into the world by its configuration A cameras' centres against the true ones (a similarity:
+the route's scale is unknown).
 
 By default every run starts from an empty stage cache (a temporary folder), so the times are
 fresh; ``--out DIR`` keeps the cache (a second run then reports the times of the cached stages as
@@ -106,9 +112,37 @@ def summary(result: dict, wall: float, parallel: bool = True) -> dict:
                                      for c in ("a", "b")}}
 
 
+def joint_errors(rows: list[dict]) -> list[dict]:
+    """The scoring's joint rows (``sim.evaluate.scoring.score_joints``) cut to the figures the
+    gates read: the true joint, the estimated type, the axis direction's error (deg), the axis
+    position's (mm, revolute) and the state's (deg or mm); None where the scoring had none."""
+
+    def rounded(x, digits):
+        return None if x is None else round(float(x), digits)
+
+    return [{"joint": j["name"], "type": j.get("type_estimated"),
+             "axis_deg": rounded(j.get("axis_angle_deg"), 4),
+             "position_mm": rounded(j.get("axis_position_mm"), 4),
+             "state_error": rounded(j.get("state_error"), 4),
+             "state_unit": j.get("state_error_unit")} for j in rows]
+
+
+def accuracy_of(result: dict) -> dict:
+    """What the scene's scoring measured against the truth: its joints (:func:`joint_errors`)
+    and the segmentation accuracy."""
+    seg = result.get("segmentation_accuracy")
+    return {"joints": joint_errors(result.get("joints") or []),
+            "segmentation": None if seg is None else round(float(seg), 4)}
+
+
 def photo_route(result: dict, work: Path) -> dict:
-    """Seconds of ``artrecon.reconstruct`` on the scene's images alone (no camera file)."""
+    """Seconds of ``artrecon.reconstruct`` on the scene's images alone (no camera file), and its
+    joints' errors against the truth (the model brought into the world by a similarity of its A
+    cameras' centres to the true ones, as the scoring registers the main job's model)."""
     from artrecon import reconstruct
+    from artrecon.register.apply import apply_registration
+    from sim.evaluate.scoring import score_joints, true_registration
+    from sim.scene import load_scene
 
     plain = {}
     for c in ("a", "b"):
@@ -116,9 +150,15 @@ def photo_route(result: dict, work: Path) -> dict:
         shutil.copytree(Path(result["_sets"][c]) / "images", plain[c])
     t, cpu = time.perf_counter(), _cpu_s()
     model = reconstruct(plain["a"], plain["b"], out_dir=work / "photo_model", progress=False)
-    return {"wall_s": time.perf_counter() - t, "cpu_s": _cpu_s() - cpu,
-            "links": len(model.links), "joints": len(model.joints),
-            "focal_px": (model.metadata.get("intrinsics") or {}).get("fx")}
+    wall, cpu = time.perf_counter() - t, _cpu_s() - cpu
+    S = true_registration(work / "photo_model", Path(result["_sets"]["a"]))
+    scores = score_joints(load_scene(result["scene_file"]), apply_registration(model, S))
+    return {"wall_s": wall, "cpu_s": cpu, "links": len(model.links), "joints": len(model.joints),
+            "focal_px": [round(float(c["focal_px"]), 2)
+                         for c in (model.metadata.get("intrinsics") or {}).values()
+                         if c.get("focal_px") is not None],
+            "accuracy": joint_errors(scores["joints"]),
+            "invented_joints": len(scores["invented_joints"])}
 
 
 def print_tables(rows: list[dict]) -> None:
@@ -135,12 +175,29 @@ def print_tables(rows: list[dict]) -> None:
                         for k in parts)
               + "".join(f"{r['stages_s'].get(k, NAN):12.1f}" for k in stages)
               + ("  PASS" if r["passed"] else f"  FAIL{' (error)' if r['error'] else ''}"))
+    print("\nscene          joint                 type        axis deg   pos mm  state err  "
+          "seg acc")
+    for r in rows:
+        acc = r.get("accuracy") or {}
+        for j in acc.get("joints") or [{"joint": "-"}]:
+            print(f"{r['scene']:14s} {_text(j.get('joint'), 21)} {_text(j.get('type'), 10)}"
+                  f"{_num(j.get('axis_deg'), 3, 10)}{_num(j.get('position_mm'), 3, 9)}"
+                  f"{_num(j.get('state_error'), 3, 8)} {_text(j.get('state_unit'), 3)}"
+                  f"{_num(acc.get('segmentation'), 3, 8)}")
     steps = ("plan", "move", "render", "png", "extract", "match", "map", "dense")
     print("\nCPU seconds per configuration" + " " * 6 + "".join(f"{k:>9s}" for k in steps))
     for r in rows:
         for c, cpu in (r.get("cpu_by_configuration") or {}).items():
             print(f"{r['scene']:14s} {c.upper()}" + " " * 19
                   + "".join(f"{cpu.get(k, NAN):9.1f}" for k in steps))
+
+
+def _text(x, width: int) -> str:
+    return f"{'-' if x is None else str(x)[:width]:{width}s}"
+
+
+def _num(x, digits: int, width: int) -> str:
+    return f"{'-':>{width}s}" if x is None else f"{x:{width}.{digits}f}"
 
 
 def main() -> int:
@@ -172,6 +229,7 @@ def main() -> int:
                    "cached": r.get("cached_stages"),
                    "stages_s": {k: round(v, 1) for k, v in r["timings_s"].items()
                                 if v is not None}}
+            row["accuracy"] = accuracy_of(r)
             if not r.get("error"):
                 row.update(summary(r, wall, ev.parallel_capture))
                 if args.photo_route == name:
@@ -188,8 +246,13 @@ def main() -> int:
     for r in rows:
         if "photo_route" in r:
             pr = r["photo_route"]
+            errors = "; ".join(
+                f"{j['joint']}: axis {_num(j['axis_deg'], 3, 0)} deg, position "
+                f"{_num(j['position_mm'], 3, 0)} mm, state {_num(j['state_error'], 3, 0)} "
+                f"{j['state_unit']}" for j in pr["accuracy"])
             print(f"photo route ({r['scene']}, images alone): {pr['wall_s']:.1f} s wall, "
-                  f"{pr['cpu_s']:.1f} s CPU, {pr['links']} links, {pr['joints']} joint(s)")
+                  f"{pr['cpu_s']:.1f} s CPU, {pr['links']} links, {pr['joints']} joint(s) "
+                  f"({errors}; {pr['invented_joints']} invented), focal {pr['focal_px']} px")
     return 0
 
 
