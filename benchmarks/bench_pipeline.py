@@ -137,8 +137,9 @@ def accuracy_of(result: dict) -> dict:
 
 def photo_route(result: dict, work: Path) -> dict:
     """Seconds of ``artrecon.reconstruct`` on the scene's images alone (no camera file), and its
-    joints' errors against the truth (the model brought into the world by a similarity of its A
-    cameras' centres to the true ones, as the scoring registers the main job's model)."""
+    joints' errors against the truth (``score_joints``), the model brought into the world by the
+    similarity of its A cameras' centres onto the true ones
+    (:func:`sim.evaluate.scoring.true_registration`; the route has no robot to register it by)."""
     from artrecon import reconstruct
     from artrecon.register.apply import apply_registration
     from sim.evaluate.scoring import score_joints, true_registration
