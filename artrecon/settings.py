@@ -152,6 +152,7 @@ RANGES: dict[str, Range | Choice] = {
     "dense.crop_radius": Range(0, 100, "a fraction of the camera distance", **_OPEN),
     "dense.voxel_pixels": Range(0, 100, "pixels", **_OPEN),
     "dense.normal_neighbours": Range(3, 1000, "points"),
+    "dense.pair_cover": Range(0, 1, "0 every image a reference, 1 a cover of the pairs"),
     # --- region (artrecon.dense.RegionConfig)
     "region.radius_fraction": Range(0, 100, "a fraction of the camera distance", **_OPEN),
     "region.plane_tolerance": Range(0, 1, "a fraction of the camera distance", **_OPEN),

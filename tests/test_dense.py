@@ -221,6 +221,42 @@ def test_object_region_keeps_a_thin_object_lying_on_the_table():
     assert mask[:len(table)].mean() < 0.01
 
 
+def _held(pairs):
+    return {k for pair in pairs.items() for k in pair}
+
+
+@pytest.mark.parametrize("step", [1, -1])
+def test_pair_cover_of_a_ring_keeps_every_second_pair(step):
+    """36 views on a ring, each paired with its neighbour (either way round): the cover keeps 18
+    pairs that share no image and still hold all 36."""
+    partners = {i: (i + step) % 36 for i in range(36)}
+    cover = dense.cover_pairs(partners)
+    assert len(cover) == 18
+    assert _held(cover) == set(range(36))
+    assert all(partners[i] == j for i, j in cover.items())
+    assert len(_held(cover)) == 2 * len(cover)  # no image in two kept pairs
+
+
+def test_pair_cover_holds_every_image_of_odd_rings_and_partner_only_images():
+    """An odd ring needs one pair more than half; an image that is only ever a partner (the
+    ring's end, no partner of its own) is held through the pair it is the partner of; three
+    rings in one model (121 images, as the bundled rings) keep 61 pairs."""
+    odd = {i: (i + 1) % 7 for i in range(7)}
+    cover = dense.cover_pairs(odd)
+    assert _held(cover) == set(range(7)) and len(cover) == 4
+    chain = {i: i + 1 for i in range(5)}  # image 5 has no partner of its own
+    cover = dense.cover_pairs(chain)
+    assert _held(cover) == set(range(6)) and len(cover) == 3
+    star = {1: 0, 2: 0, 3: 0}  # every image pairs with 0: each pair is needed
+    assert dense.cover_pairs(star) == star
+    rings = {}
+    for start, n in ((0, 36), (36, 36), (72, 36), (108, 13)):
+        rings.update({start + k: start + (k + 1) % n for k in range(n)})
+    cover = dense.cover_pairs(rings)
+    assert _held(cover) == set(range(121)) and len(cover) == 61
+    assert dense.cover_pairs({}) == {}
+
+
 def test_disparity_range_ends_at_the_nearest_shared_point():
     """Two parallel cameras 5 cm apart (f 500 px), shared points at 0.3 m and 2 m: the range's
     near end is the nearest points' true disparity (f b / Z = 83.3 px) and its margin, not twice

@@ -550,7 +550,8 @@ def test_malformed_scene_raises_useful_error(tmp_path, case, kwargs, needles):
 def test_scene_reconstruction_settings_are_read_and_applied(tmp_path):
     """A scene's reconstruct:STAGE.FIELD numerics reach ReconstructConfig (sim.evaluate builds its
     config from them); scissors and both pliers scenes ask for full-resolution stereo (their
-    halves are millimetres thick), truck for nothing."""
+    halves are millimetres thick), scissors also for every image as a stereo reference (a
+    boolean, given as 0), truck for nothing."""
     from artrecon.reconstruct import ReconstructConfig, with_settings
 
     path = _write(tmp_path, configs=_CONFIGS + '<numeric name="reconstruct:dense.downsample" '
@@ -563,7 +564,10 @@ def test_scene_reconstruction_settings_are_read_and_applied(tmp_path):
     assert config.dense.downsample == 1 and isinstance(config.dense.downsample, int)
     assert config.segmentation.min_link_fraction == 0.05
     assert config.dense.voxel_pixels == ReconstructConfig().dense.voxel_pixels  # others kept
-    assert load_scene("scissors").reconstruct_settings == {"dense.downsample": 1.0}
+    assert load_scene("scissors").reconstruct_settings == {"dense.downsample": 1.0,
+                                                           "dense.pair_cover": 0.0}
+    scissors = with_settings(ReconstructConfig(), load_scene("scissors").reconstruct_settings)
+    assert scissors.dense.pair_cover is False and ReconstructConfig().dense.pair_cover is True
     for name in ("pliers", "pliers_panda"):
         assert load_scene(name).reconstruct_settings == {"dense.downsample": 1.0}
     assert load_scene("truck").reconstruct_settings == {}
