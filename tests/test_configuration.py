@@ -94,13 +94,29 @@ def test_the_record_names_its_images_absolutely_and_a_lost_folder_is_refused(
         load_configuration(moved)
 
 
+def _without_timings(path):
+    d = json.loads(path.read_text())
+    d["metadata"].pop("timings")
+    return d
+
+
 def test_side_by_side_equals_one_after_the_other_and_folders_are_reused(
         rendered, reconstruction_poses, tmp_path):
-    """jobs=2 (B in a second process: the shared run) and jobs=1 give the same model; a run
-    given the finished per-configuration folders reuses them and gives it again."""
+    """jobs=2 (B in a second process: the shared run) and jobs=1 give the same model, bit for
+    bit: the same inputs and seed give the same model.json apart from its timings and the same
+    link point files byte for byte, whichever process a configuration ran in; a run given the
+    finished per-configuration folders reuses them and gives the model again."""
     a, b = rendered["a"].folder, rendered["b"].folder
     m2, shared = reconstruction_poses  # reconstruct's default, jobs=2
-    m1 = reconstruct(a, b, poses=True, out_dir=tmp_path / "one", progress=False, jobs=1)
+    one = tmp_path / "one"
+    m1 = reconstruct(a, b, poses=True, out_dir=one, progress=False, jobs=1)
+    assert _without_timings(one / "model.json") == _without_timings(shared / "model.json")
+    links = sorted(p.name for p in (shared / "links").iterdir())
+    assert sorted(p.name for p in (one / "links").iterdir()) == links
+    assert any(name.endswith(".ply") for name in links)
+    for name in links:  # but the links stage's record (its timings)
+        if name != "links.json":
+            assert (one / "links" / name).read_bytes() == (shared / "links" / name).read_bytes()
     m3 = reconstruct(a, b, poses=True, out_dir=tmp_path / "reuse", progress=False,
                      configurations=(shared / "a", shared / "b"))
     for other in (m1, m3):
