@@ -70,14 +70,14 @@ def _hinge_errors(model, out, truth_a, mapping):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("order", ["in order", "shuffled", "at another size"])
+@pytest.mark.parametrize("order", ["in order", "shuffled, at another size"])
 def test_plain_image_folders_self_calibrate(rendered, tmp_path, order):
-    """cameras.json removed, file names in capture order, shuffled under new names, or the
-    images at 3/4 of their size (480 x 360; the issue's third plain-folder case): one
-    self-calibrated camera per set, its focal length reported (scaled with the images), and
-    the hinge recovered."""
-    seed = {"shuffled": 1}.get(order)
-    scale = 0.75 if order == "at another size" else 1.0
+    """cameras.json removed, file names in capture order, or shuffled under new names with the
+    images at 3/4 of their size (480 x 360; the issue's second and third plain-folder cases in
+    one run, each a whole self-calibrated reconstruction): one self-calibrated camera per set,
+    its focal length reported (scaled with the images), and the hinge recovered."""
+    seed = 1 if order.startswith("shuffled") else None
+    scale = 0.75 if order.endswith("at another size") else 1.0
     maps = {c: _plain_copy(rendered[c], tmp_path / c, None if seed is None else seed + i, scale)
             for i, c in enumerate("ab")}
     out = tmp_path / "model"

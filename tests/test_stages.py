@@ -139,12 +139,19 @@ def test_to_matches_then_from_links_gives_the_whole_runs_model_and_takes_other_s
     """Stopped after the matches and continued from them: the whole run's model, without a
     configuration or a match computed again; continued with another segmentation setting: a
     model from the same matches; with another match setting: refused (the matches would be
-    other ones), nothing changed."""
+    other ones), nothing changed. The first half starts from copies of the whole run's
+    configurations (``--from matches``; computing them through the command line is the test
+    above's)."""
     whole_model, whole = reconstruction_poses
     a, b = str(rendered["a"].folder), str(rendered["b"].folder)
     out = tmp_path / "staged"
-    assert main(["reconstruct", a, b, "--out", str(out), "--use-poses", "--quiet",
-                 "--to", "matches"]) == 0
+    for c in ("a", "b"):
+        shutil.copytree(whole / c, out / c, symlinks=True)
+    with monkeypatch.context() as m:
+        m.setattr(configuration, "run_sfm", _recompute)
+        m.setattr(configuration, "fused_points", _recompute)
+        assert main(["reconstruct", a, b, "--out", str(out), "--use-poses", "--quiet",
+                     "--from", "matches", "--to", "matches"]) == 0
     printed = capsys.readouterr().out
     assert sorted(p.name for p in out.iterdir()) == ["a", "b", "matches"]
     assert "stage 'matches'" in printed and "continue with" in printed
