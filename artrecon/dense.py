@@ -88,8 +88,8 @@ class DenseConfig:
     normal_neighbours: int = 16
     """Neighbours for the PCA normal."""
     pair_cover: bool = True
-    """Stereo on a cover of the pairs only: the fewest pairs that still hold every image,
-    reference or partner (:func:`cover_pairs`: about every second image of a ring gets a depth
+    """Stereo on a cover of the pairs only: few pairs that still hold every image, reference or
+    partner (:func:`cover_pairs`: about every second image of a ring gets a depth
     map). False: every image is a reference. On a ring of views 10 degrees apart each image's
     neighbours see the same surface, so the cover halves the stage's stereo at nearly the same
     points: on the seven scenes at half resolution (seeds 0-2) every axis within 0.025 deg of
@@ -203,13 +203,14 @@ def choose_partners(views: list[_View], centre: np.ndarray, config: DenseConfig)
 
 
 def cover_pairs(partners: dict) -> dict:
-    """The fewest of the stereo ``partners`` (reference view index -> partner index, from
+    """Few of the stereo ``partners`` (reference view index -> partner index, from
     :func:`choose_partners`) that still hold every image they hold, as reference or partner.
 
-    A greedy edge cover: first a maximal set of pairs that share no image (in reference order),
-    then, for each image left out, its own pair (or, if it is only ever a partner, the first pair
-    it is the partner of). On a ring whose neighbours pair up that keeps every second pair,
-    whichever way round the ring the partners lie."""
+    A greedy edge cover (not always the smallest one): first a maximal set of pairs that share
+    no image (in reference order), then, for each image left out, its own pair (or, if it is
+    only ever a partner, the first pair it is the partner of). On a ring whose neighbours pair
+    up that keeps every second pair (one more on an odd ring), whichever way round the ring the
+    partners lie."""
     keep, held = {}, set()
     for i, j in sorted(partners.items()):
         if i not in held and j not in held:
