@@ -128,6 +128,7 @@ RANGES: dict[str, Range | Choice] = {
     "sfm.sequential_window": Range(1, 1000, "neighbours in name order"),
     "sfm.retrieval_neighbours": Range(0, 1000, "0: no retrieval pairs"),
     "sfm.retrieval_sample": Range(10, 100_000, "descriptors per image"),
+    "sfm.global_ba_growth": Range(1, 100, "a factor of growth", **_OPEN),
     "sfm.min_registered_fraction": Range(0, 1, _FRACTION, **_OPEN),
     "sfm.num_threads": Range(-1, 1024, "-1 or 0: all cores"),
     "sfm.max_layout_error": Range(0, 1, "a fraction of the cameras' spread", **_OPEN),

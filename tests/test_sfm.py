@@ -176,6 +176,19 @@ def test_self_calibration_keeps_the_first_pass_cameras_unless_it_missed_images(
     assert abs(camera.mean_focal_length() / rf.FOCAL - 1) < 0.01
 
 
+def test_mapping_spaces_its_global_adjustments_by_the_configured_growth():
+    """sfm.global_ba_growth reaches COLMAP's incremental mapper for both the images and the
+    points, with or without given intrinsics (which still hold the focal length fixed)."""
+    from artrecon.sfm.mapping import _mapping_options
+
+    for intrinsics in (None, io.Intrinsics(rf.K, (rf.WIDTH, rf.HEIGHT))):
+        opts = _mapping_options(intrinsics, sfm.SfMConfig(global_ba_growth=1.6), seed=3)
+        assert opts.ba_global_frames_ratio == opts.ba_global_points_ratio == 1.6
+        assert opts.ba_refine_focal_length == (intrinsics is None)
+    default = _mapping_options(None, sfm.SfMConfig(), seed=0)
+    assert default.ba_global_frames_ratio == sfm.SfMConfig().global_ba_growth
+
+
 @pytest.mark.slow
 def test_known_poses_fast_path(rendered, reconstruction_poses):
     """With the arm's poses the model is metric and in the world frame: no alignment needed."""

@@ -35,6 +35,8 @@ def _mapping_options(intrinsics: Intrinsics | None, config: SfMConfig, seed: int
     opts.random_seed = seed
     opts.mapper.random_seed = seed
     opts.triangulation.random_seed = seed
+    opts.ba_global_frames_ratio = config.global_ba_growth
+    opts.ba_global_points_ratio = config.global_ba_growth
     if intrinsics is not None:
         opts.ba_refine_focal_length = False
         opts.ba_refine_principal_point = False
