@@ -144,7 +144,7 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
         plan_cfg = view_plan
     out_dir = check_out_dir(Path(out_dir), overwrite, scene_inputs(scene))
     t_start = time.perf_counter()
-    cpu_start, main_start = time.process_time(), time.thread_time()
+    cpu_start = time.process_time()
     rig = make_rig(scene, config)
     sc, model, data, kin = rig.scene, rig.model, rig.data, rig.kin
     K, width, height = rig.K, rig.width, rig.height
@@ -159,7 +159,9 @@ def capture(scene, config: str, out_dir, *, n_views: int = views.DEFAULT_VIEWS_P
                                    cell=views.KnownCell(sc.path), cache_dir=plan_cache,
                                    stage=f"plan_{config}", progress=bar)
     t_plan = time.perf_counter()
-    plan_cpu = time.thread_time() - main_start
+    # the process's CPU, not the main thread's: the plan's survey renders on the rasteriser's
+    # threads (barrett_hand: 5.7 CPU s, 2.2 of them on the main thread); no PNG writer yet
+    plan_cpu = time.process_time() - cpu_start
     log.info("%s config %s: %d views on %d rings around the object (radius %.3f m): %s", sc.name,
              config, len(plan.views), len(plan.rings), plan.radius,
              ", ".join(f"{np.rad2deg(r.elevation):.1f} deg at {r.distance:.3f} m"
