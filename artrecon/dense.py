@@ -217,12 +217,9 @@ def cover_pairs(partners: dict) -> dict:
             keep[i] = j
             held.update((i, j))
     for i, j in sorted(partners.items()):
-        if i not in held:
+        if i not in held or j not in held:
             keep[i] = j
             held.update((i, j))
-        if j not in held:
-            keep[i] = j
-            held.add(j)
     return keep
 
 
