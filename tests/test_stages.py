@@ -148,8 +148,7 @@ def test_to_matches_then_from_links_gives_the_whole_runs_model_and_takes_other_s
     for c in ("a", "b"):
         shutil.copytree(whole / c, out / c, symlinks=True)
     with monkeypatch.context() as m:
-        m.setattr(configuration, "run_sfm", _recompute)
-        m.setattr(configuration, "fused_points", _recompute)
+        _patch_stages_before(m, "matches")
         assert main(["reconstruct", a, b, "--out", str(out), "--use-poses", "--quiet",
                      "--from", "matches", "--to", "matches"]) == 0
     printed = capsys.readouterr().out
