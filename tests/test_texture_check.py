@@ -5,6 +5,7 @@ with a plain part is refused in seconds with a message naming the part and the f
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import time
@@ -97,9 +98,9 @@ def test_the_second_process_starts_before_the_texture_check(monkeypatch, tmp_pat
     """The scene's second process is started before the texture check, so that its start
     (about 1 s of imports) runs beside the check instead of after it, which delayed B's chain;
     the worker gets one rasteriser thread while this process keeps its environment (it renders
-    the check itself); a failing check ends the scene there, and the worker with it."""
+    the check itself); a failing check ends the scene there. The worker is kept for the next
+    scene (its start held every scene's B chain back) and ended by close_second_process."""
     import contextlib
-    import os
 
     import slow_tasks
 
@@ -107,7 +108,7 @@ def test_the_second_process_starts_before_the_texture_check(monkeypatch, tmp_pat
     from sim import evaluate
     from sim.evaluate import stages
 
-    real, pools, seen = stages.second_process, [], {}
+    real, pools, seen = stages.second_process, [], []
 
     @contextlib.contextmanager
     def recording(ev):
@@ -116,21 +117,44 @@ def test_the_second_process_starts_before_the_texture_check(monkeypatch, tmp_pat
             yield pool
 
     def check(scene):
-        (pool,) = pools
-        seen["processes"] = list(pool._processes.values())
-        seen["alive"] = [p.is_alive() for p in seen["processes"]]
-        seen["worker"] = workers.submit(pool, slow_tasks.rasteriser_threads).result()
-        seen["this"] = os.environ.get("LP_NUM_THREADS")
+        pool = pools[-1]
+        processes = list(pool._processes.values())
+        seen.append({"processes": processes, "alive": [p.is_alive() for p in processes],
+                     "worker": workers.submit(pool, slow_tasks.rasteriser_threads).result(),
+                     "this": os.environ.get("LP_NUM_THREADS")})
         raise TextureError("part 'x' is too plain")
 
+    stages.close_second_process()  # a worker of an earlier test in this process
     monkeypatch.delenv("LP_NUM_THREADS", raising=False)
     monkeypatch.setattr(evaluate.runner, "second_process", recording)
     monkeypatch.setattr(evaluate.runner, "check_texture", check)
-    result = evaluate.evaluate_scene("pliers", evaluate.EvalConfig(progress=False),
-                                     tmp_path / "eval")
-    assert result["error_stage"] == "texture_check" and "too plain" in result["error"]
-    assert seen["alive"] == [True] and seen["worker"] == "1" and seen["this"] is None
-    assert not any(p.is_alive() for p in seen["processes"])  # shut down with the scene
+    for _ in range(2):
+        result = evaluate.evaluate_scene("pliers", evaluate.EvalConfig(progress=False),
+                                         tmp_path / "eval")
+        assert result["error_stage"] == "texture_check" and "too plain" in result["error"]
+    for s in seen:
+        assert s["alive"] == [True] and s["worker"] == "1" and s["this"] is None
+    # the second scene had the first's worker, which outlived both scenes until closed
+    assert pools[0] is pools[1] and seen[0]["processes"] == seen[1]["processes"]
+    assert all(p.is_alive() for p in seen[0]["processes"])
+    stages.close_second_process()
+    assert not any(p.is_alive() for p in seen[0]["processes"])
+
+
+def test_a_dead_second_process_is_replaced_at_the_next_scene(monkeypatch, tmp_path):
+    """A kept worker that died (killed, Ctrl-C's stop) is not handed to the next scene: that
+    scene starts its own."""
+    from artrecon import workers
+    from sim import evaluate
+    from sim.evaluate import stages
+
+    stages.close_second_process()
+    with stages.second_process(evaluate.EvalConfig(progress=False)) as first:
+        assert first.submit(os.getpid).result() != os.getpid()
+    workers.stop(first)
+    with stages.second_process(evaluate.EvalConfig(progress=False)) as second:
+        assert second is not first and second.submit(int, 7).result() == 7
+    stages.close_second_process()
 
 
 def test_textured_mask_sees_texture_not_shading_or_edges():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import functools
 import importlib
@@ -9,6 +10,7 @@ import inspect
 import logging
 import os
 import platform
+import threading
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
@@ -214,17 +216,12 @@ def configuration_chain(scene: Scene, configuration: str, ev: EvalConfig, cache_
                         f"configuration_{configuration}": cmeta["build_s"]}}
 
 
-@contextlib.contextmanager
-def second_process(ev: EvalConfig) -> Iterator[ProcessPoolExecutor | None]:
-    """One scene's second process (spawned, one worker that dies with this one), or None
-    without ``ev.parallel_capture``: configuration B's chain runs there beside A's
-    (:func:`configuration_chains`), then the manipulation beside the scoring
-    (:func:`sim.evaluate.runner.evaluate_scene`). One process for both: a worker costs about
-    2 CPU seconds to start (imports, its OpenGL context). Ctrl-C stops it at once; otherwise
-    it is shut down when the block ends, after its task."""
-    if not ev.parallel_capture:
-        yield None
-        return
+#: The second process of this process's scenes and the thread that started it (see
+#: :func:`second_process`), or None before the first scene, after a Ctrl-C or once closed.
+_SECOND: tuple[ProcessPoolExecutor, threading.Thread] | None = None
+
+
+def _start_second_process() -> ProcessPoolExecutor:
     # one core each: the CPU rasteriser's threads (read when a process first renders) and,
     # in artrecon's per-configuration stage, BLAS and OpenCV (artrecon.configuration). The
     # variable is set for the worker's start only: this process keeps the rasteriser threads
@@ -240,13 +237,63 @@ def second_process(ev: EvalConfig) -> Iterator[ProcessPoolExecutor | None]:
     finally:
         if saved is None:
             os.environ.pop("LP_NUM_THREADS", None)
+    return pool
+
+
+def _usable(pool: ProcessPoolExecutor, started_by: threading.Thread) -> bool:
+    """A kept second process serves the next scene only from the thread that started it (its
+    worker dies with that thread: see :func:`artrecon.workers.pool`) and only while it works."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    return (started_by is threading.current_thread() and started_by.is_alive()
+            and not getattr(pool, "_broken", False) and not getattr(pool, "_shutdown_thread", False)
+            and all(p.is_alive() for p in processes))
+
+
+def close_second_process() -> None:
+    """Shut the kept second process down (after its tasks); the next scene starts another.
+    Registered to run when this process exits."""
+    global _SECOND
+    kept, _SECOND = _SECOND, None
+    if kept is not None:
+        kept[0].shutdown(wait=True)
+
+
+atexit.register(close_second_process)
+
+
+@contextlib.contextmanager
+def second_process(ev: EvalConfig) -> Iterator[ProcessPoolExecutor | None]:
+    """The scene's second process (spawned, one worker that dies with this one), or None
+    without ``ev.parallel_capture``: configuration B's chain runs there beside A's
+    (:func:`configuration_chains`), then the manipulation beside the scoring
+    (:func:`sim.evaluate.runner.evaluate_scene`). One process for both.
+
+    The process is kept for this process's next scene (:func:`close_second_process` ends it,
+    at the latest when this process exits): a worker costs about 2 CPU seconds to start
+    (imports, its stages' code keys, its OpenGL context), and a new one per scene held B's
+    chain back by about 1.5 s at every scene's start. When the block ends every task given to
+    the worker in it has ended (the next scene finds it idle). Ctrl-C stops it at once; a
+    worker that died or was stopped is replaced at the next scene."""
+    global _SECOND
+    if not ev.parallel_capture:
+        yield None
+        return
+    if _SECOND is None or not _usable(*_SECOND):
+        close_second_process()
+        _SECOND = (_start_second_process(), threading.current_thread())
+    pool = _SECOND[0]
     try:
         yield pool
     except KeyboardInterrupt:
+        _SECOND = None
         workers.stop(pool)
         raise
     finally:
-        pool.shutdown(wait=True)
+        if _SECOND is not None and _SECOND[0] is pool:
+            try:  # one worker, its tasks in order: this one ends after every task before it
+                pool.submit(int).result()
+            except Exception:  # noqa: BLE001  (a dead worker: the next scene starts another)
+                close_second_process()
 
 
 def configuration_chains(scene: Scene, ev: EvalConfig, cache_root: Path, scene_hash: str,
