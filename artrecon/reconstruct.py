@@ -112,8 +112,10 @@ from artrecon.files import (
     work_dir,
 )
 from artrecon.io import (
+    ImageSet,
     Intrinsics,
     check_distinct,
+    image_set_again,
     load_cameras_json,
     load_image_folder,
     load_region,
@@ -166,7 +168,7 @@ _HOLDS = {"matches": "matches", "links": "links", "joints": "joints", "refine": 
 
 
 def _resolve_inputs(images, intrinsics, poses_arg, which: str):
-    iset = load_image_folder(images)
+    iset = image_set_again(images) if isinstance(images, ImageSet) else load_image_folder(images)
     intr = None
     poses = None
     if intrinsics is not None:
@@ -211,8 +213,11 @@ def reconstruct(images_a, images_b, *, intrinsics=None, poses=None, out_dir=None
 
     Parameters
     ----------
-    images_a, images_b : str or Path
-        Folders of photos of configuration A and B (or capture folders with ``images/``).
+    images_a, images_b : str, Path or ImageSet
+        Folders of photos of configuration A and B (or capture folders with ``images/``), or
+        the :class:`artrecon.io.ImageSet` that :func:`artrecon.io.load_image_folder` gave for
+        such a folder earlier in the same run (its files are checked by their digests instead
+        of decoding every image again: :func:`artrecon.io.image_set_again`).
     intrinsics : (3, 3) array, "fx,fy,cx,cy", JSON path, Intrinsics, or a pair of them, optional
         Known pinhole intrinsics (held fixed). When absent, a folder's ``cameras.json`` supplies
         them if present; otherwise COLMAP estimates them.

@@ -629,6 +629,38 @@ def test_some_shared_images_only_warn(tmp_path, caplog):
     assert "1 image(s)" in caplog.text and "byte-identical" in caplog.text
 
 
+def test_an_image_set_loaded_earlier_is_taken_while_its_files_are_unchanged(tmp_path,
+                                                                           monkeypatch):
+    """reconstruct takes an ImageSet that load_image_folder gave earlier in the run (the
+    evaluation's configuration stage, maybe in another process): its files are checked by their
+    digests, not decoded again; a file changed, added or removed since loads the folder anew,
+    with load_image_folder's checks (a corrupt image is named)."""
+    a = _write_images(tmp_path / "a")
+    first = io.load_image_folder(a)
+    decoded = []
+    real = cv2.imdecode
+    monkeypatch.setattr(io.cv2, "imdecode", lambda *x: decoded.append(1) or real(*x))
+    again = io.image_set_again(first)
+    assert again == first and again.thumbnails is first.thumbnails and not decoded
+    assert again.region is None
+    # with a region (the poses' file adds it), the set comes back as load_image_folder gives it
+    from dataclasses import replace
+    assert io.image_set_again(replace(first, region=np.zeros((4, 3)))).region is None
+    # one file's bytes changed: the folder is loaded anew (and decoded)
+    img = cv2.imread(str(a / "img_01.png"))
+    img[0, 0] = 255 - img[0, 0]
+    cv2.imwrite(str(a / "img_01.png"), img)
+    changed = io.image_set_again(first)
+    assert len(decoded) == 6 and changed.digests != first.digests
+    assert changed.digests == io.load_image_folder(a).digests
+    # an image added, and one corrupt: the folder's own errors
+    shutil.copy(a / "img_00.png", a / "img_77.png")
+    assert io.image_set_again(first).names == first.names + ["img_77.png"]
+    (a / "img_02.png").write_bytes(b"not a png")
+    with pytest.raises(InputError, match="img_02.png"):
+        io.image_set_again(first)
+
+
 def test_matches_of_different_objects_are_called_so():
     """Matches that no rigid motion explains (chance pairings of two different objects) are
     reported as such; a real one-body motion keeps its own message."""

@@ -123,7 +123,7 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
             result["scene_file"] = str(scene.path)
             scene_hash = cache.scene_hash(scene.path)
             result["scene_hash"] = scene_hash
-            sets, keys, confs, capture_sets = {}, [], {}, {}
+            sets, keys, confs, capture_sets, images = {}, [], {}, {}, {}
             stage = "capture_a"
             chains = configuration_chains(scene, ev, cache_root, scene_hash,
                                           dict(scene.reconstruct_settings), pool)
@@ -135,6 +135,7 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
                 chain = chains[c]
                 meta = chain["capture"]
                 sets[c], confs[c] = chain["set"], chain["configuration"]
+                images[c] = chain["images"]
                 capture_sets[c] = chain["capture_set"]
                 keys.append(chain["key"])
                 if chain["perturb"]:
@@ -149,7 +150,8 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
             stage = "reconstruct"
             model_dir, meta, hit = reconstruct_stage(sets["a"], sets["b"], tuple(keys), ev,
                                                      cache_root, dict(scene.reconstruct_settings),
-                                                     (confs["a"], confs["b"]))
+                                                     (confs["a"], confs["b"]),
+                                                     (images["a"], images["b"]))
             result["_model_dir"] = str(model_dir)
             rt = meta.get("timings", {})
             timings["sfm"] = rt.get("sfm_a", 0.0) + rt.get("sfm_b", 0.0)

@@ -27,6 +27,7 @@ import artrecon
 import artrecon.configuration
 from artrecon import workers
 from artrecon.files import read_json
+from artrecon.io import load_image_folder
 from artrecon.reconstruct import (
     ReconstructConfig,
     prepare_configuration,
@@ -166,16 +167,23 @@ def _configuration_inputs(capture_key: str, configuration: str, ev: EvalConfig,
 
 
 def configuration_stage(set_dir: Path, capture_key: str, configuration: str, ev: EvalConfig,
-                        cache_root: Path, settings: dict | None = None
-                        ) -> tuple[Path, dict, bool]:
+                        cache_root: Path, settings: dict | None = None,
+                        loaded: dict | None = None) -> tuple[Path, dict, bool]:
     """artrecon's per-configuration stage (SfM or FK triangulation, dense points, the object
-    region) of one captured set (cached). Returns its folder, stage metadata, hit."""
+    region) of one captured set (cached). Returns its folder, stage metadata, hit.
+
+    ``loaded``: when the stage is built, its checked image set
+    (:func:`artrecon.io.load_image_folder`) is put there under ``"images"``, for the model
+    stage (:func:`reconstruct_stage`), which then need not decode every image again."""
     config = with_settings(ReconstructConfig(), settings or {})
 
     def build(folder: Path) -> dict:
-        prepare_configuration(set_dir, folder / "configuration", seed=ev.seed, config=config,
+        images = load_image_folder(set_dir)
+        prepare_configuration(images, folder / "configuration", seed=ev.seed, config=config,
                               poses=True if ev.poses == "fk" else None,
                               which=configuration.upper(), progress=ev.progress)
+        if loaded is not None:
+            loaded["images"] = images
         return {}
 
     inputs = _configuration_inputs(capture_key, configuration, ev, settings)
@@ -194,9 +202,11 @@ def configuration_chain(scene: Scene, configuration: str, ev: EvalConfig, cache_
     dict
         ``set`` (the image set artrecon reads), ``capture`` (capture metadata), ``key`` (the
         set's cache key), ``perturb`` (perturbation summary), ``configuration`` (the stage's
-        folder), ``hits`` (names of the stages taken from the cache), ``build_s`` (seconds
-        per stage as built).
+        folder), ``images`` (the set as the configuration stage checked it,
+        :class:`artrecon.io.ImageSet`, or None when that stage came from the cache), ``hits``
+        (names of the stages taken from the cache), ``build_s`` (seconds per stage as built).
     """
+    loaded: dict = {}
     stage = f"capture_{configuration}"
     try:
         folder, meta, hit = capture_stage(scene, configuration, ev, cache_root, scene_hash)
@@ -204,12 +214,12 @@ def configuration_chain(scene: Scene, configuration: str, ev: EvalConfig, cache_
                                                 configuration, cache_root)
         stage = "reconstruct"  # artrecon's per-configuration part of it
         conf, cmeta, chit = configuration_stage(set_dir, key, configuration, ev, cache_root,
-                                                settings)
+                                                settings, loaded)
     except Exception as err:
         err.stage = stage  # which stage failed, for the scene's record (crosses processes)
         raise
     return {"set": set_dir, "capture_set": folder, "capture": meta, "key": key, "perturb": pmeta,
-            "configuration": conf,
+            "configuration": conf, "images": loaded.get("images"),
             "hits": [n for n, h in ((f"capture_{configuration}", hit),
                                     (f"configuration_{configuration}", chit)) if h],
             "build_s": {f"capture_{configuration}": meta["build_s"],
@@ -329,19 +339,24 @@ def configuration_chains(scene: Scene, ev: EvalConfig, cache_root: Path, scene_h
 
 def reconstruct_stage(set_a: Path, set_b: Path, keys: tuple[str, str], ev: EvalConfig,
                       cache_root: Path, settings: dict | None = None,
-                      configurations: tuple[Path, Path] | None = None
-                      ) -> tuple[Path, dict, bool]:
+                      configurations: tuple[Path, Path] | None = None,
+                      images: tuple | None = None) -> tuple[Path, dict, bool]:
     """Reconstruct the model from the two image sets (cached), with the default settings
     changed by ``settings`` (the scene's, :attr:`sim.scene.Scene.reconstruct_settings`),
     starting from the finished per-configuration stages when given (:func:`configuration_stage`).
-    Returns the model folder (``model.json``, ``a/sparse/0`` ...), stage metadata, hit."""
+    ``images``: the sets as those stages checked them (each an :class:`artrecon.io.ImageSet`
+    or None), which the model stage takes instead of decoding every image again (their files
+    are checked by their digests). Returns the model folder (``model.json``, ``a/sparse/0``
+    ...), stage metadata, hit."""
+    given = tuple(images) if images is not None else (None, None)
     config = with_settings(ReconstructConfig(), settings or {})
     inputs = {"captures": list(keys), "poses": ev.poses, "seed": ev.seed,
               "config": jsonable(asdict(config)), "version": artrecon.__version__,
               "code": _reconstruct_sources()}
 
     def build(folder: Path) -> dict:
-        model = reconstruct(set_a, set_b, poses=True if ev.poses == "fk" else None,
+        model = reconstruct(given[0] or set_a, given[1] or set_b,
+                            poses=True if ev.poses == "fk" else None,
                             out_dir=folder / "model", seed=ev.seed, config=config,
                             progress=ev.progress, configurations=configurations)
         return {"timings": model.metadata.get("timings", {}),
