@@ -223,3 +223,21 @@ def test_a_sphere_alone_is_held_by_the_fresh_views_obstacle():
     on_sphere = centre + radius * d / np.linalg.norm(d, axis=1, keepdims=True)
     assert (on_sphere @ hull.equations[:, :3].T + hull.equations[:, 3]).max() <= 0.0
     assert hull.volume <= 1.25 * 4.0 / 3.0 * np.pi * radius ** 3
+
+
+def test_the_survey_cameras_image_scale_keeps_every_ray():
+    """The survey photographs at SurveyConfig.image_scale of the camera's size: the scaled
+    intrinsics put every point where the resized image shows it (a pixel's centre at
+    (u + 0.5) * scale - 0.5), and scale 1 is the camera itself."""
+    K = np.array([[554.3, 0.0, 319.5], [0.0, 554.3, 239.5], [0.0, 0.0, 1.0]])
+    S, w, h = survey_mod.scaled_camera(K, 640, 480, 0.5)
+    assert (w, h) == (320, 240)
+    rng = np.random.default_rng(0)
+    X = np.c_[rng.uniform(-0.2, 0.2, (50, 2)), rng.uniform(0.4, 0.9, 50)]
+    full = (X @ K.T)[:, :2] / X[:, 2:]
+    half = (X @ S.T)[:, :2] / X[:, 2:]
+    np.testing.assert_allclose(half, (full + 0.5) * 0.5 - 0.5, atol=1e-9)
+    same = survey_mod.scaled_camera(K, 640, 480, 1.0)
+    assert same[0] is K and same[1:] == (640, 480)
+    with pytest.raises(ValueError, match="image_scale"):
+        survey_mod.scaled_camera(K, 640, 480, 1.5)

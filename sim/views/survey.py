@@ -76,7 +76,13 @@ class SurveyConfig:
     """a voxel is kept only if at least this many views see it (inside their image) and every
     view that sees it sees the object there"""
     min_pixels: int = 30
-    """an object's silhouette has at least this many pixels in a view"""
+    """an object's silhouette has at least this many pixels in a view (of the survey's images:
+    see ``image_scale``)"""
+    image_scale: float = 0.5
+    """the survey photographs at this fraction of the camera's image size (its intrinsics
+    scaled alike): the silhouettes carve 3 mm voxels, which the half-size images still resolve
+    (a voxel spans 1-2 of their pixels from the survey's distances), at about 40% less of the
+    plan's rendering (drawer: the survey 6.0 -> 3.5 CPU s; its sphere's radius 254 -> 257 mm)"""
     frame_elevations_deg: tuple[float, ...] = (12.0, 45.0, 75.0)
     """elevations of the second pass's views, which frame the first pass's hull"""
     frame_fill: float = 0.85
@@ -128,6 +134,20 @@ def table_top(model: mujoco.MjModel, data: mujoco.MjData) -> tuple[np.ndarray, f
     radius, half = (float(x) for x in model.geom_size[g, :2])
     axis = data.geom_xmat[g].reshape(3, 3)[:, 2]
     return data.geom_xpos[g] + half * axis, radius
+
+
+def scaled_camera(K: np.ndarray, width: int, height: int,
+                  scale: float) -> tuple[np.ndarray, int, int]:
+    """The intrinsics and size of the camera's images resized by ``scale`` (OpenCV intrinsics,
+    pixel centres at integer coordinates: a pixel edge at -0.5 stays at the image's edge)."""
+    if scale == 1.0:
+        return K, int(width), int(height)
+    if not 0.0 < scale <= 1.0:
+        raise ValueError(f"SurveyConfig.image_scale: expected a fraction in (0, 1], got {scale}")
+    S = K.copy()
+    S[0, 0], S[1, 1] = K[0, 0] * scale, K[1, 1] * scale
+    S[0, 2], S[1, 2] = (K[0, 2] + 0.5) * scale - 0.5, (K[1, 2] + 0.5) * scale - 0.5
+    return S, max(1, round(width * scale)), max(1, round(height * scale))
 
 
 def _silhouette(color: np.ndarray, plate: np.ndarray, own: np.ndarray,
@@ -284,7 +304,8 @@ def survey_object(model: mujoco.MjModel, data: mujoco.MjData, kin: robot.ArmKine
         photographs, a hull that reaches the edge of the carved volume, or a survey pose at
         which the arm touches the object.
     """
-    K = np.asarray(K, dtype=float)
+    K, width, height = scaled_camera(np.asarray(K, dtype=float), width, height,
+                                     config.image_scale)
     top, table_radius = table_top(model, data)
     saved = data.qpos.copy()
     masks, cameras = [], []
