@@ -19,3 +19,11 @@ def slow_configuration_b(*args) -> None:
 def rasteriser_threads() -> str | None:
     """The worker's ``LP_NUM_THREADS`` (Mesa llvmpipe's rasteriser threads), None if unset."""
     return os.environ.get("LP_NUM_THREADS")
+
+
+def busy(seconds: float) -> float:
+    """Keep one core busy for ``seconds`` of this process's CPU; returns the CPU it used."""
+    start = time.process_time()
+    while time.process_time() - start < seconds:
+        sum(i * i for i in range(10000))
+    return time.process_time() - start

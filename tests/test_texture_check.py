@@ -152,9 +152,28 @@ def test_a_dead_second_process_is_replaced_at_the_next_scene(monkeypatch, tmp_pa
     with stages.second_process(evaluate.EvalConfig(progress=False)) as first:
         assert first.submit(os.getpid).result() != os.getpid()
     workers.stop(first)
+    assert stages.process_cpu_s(first) is None  # no worker: no figure, not a wrong one
     with stages.second_process(evaluate.EvalConfig(progress=False)) as second:
         assert second is not first and second.submit(int, 7).result() == 7
     stages.close_second_process()
+
+
+def test_the_kept_second_process_s_cpu_is_counted():
+    """A kept worker is no finished child of this process (RUSAGE_CHILDREN misses it), so a
+    scene's record reads its CPU from /proc: a task that burns 1.5 s of CPU there shows."""
+    import slow_tasks
+
+    from sim import evaluate
+    from sim.evaluate import stages
+
+    stages.close_second_process()
+    with stages.second_process(evaluate.EvalConfig(progress=False)) as pool:
+        pool.submit(int).result()  # started (its imports and code keys are its own CPU)
+        before = stages.process_cpu_s(pool)
+        used = pool.submit(slow_tasks.busy, 1.5).result()
+        after = stages.process_cpu_s(pool)
+    stages.close_second_process()
+    assert used >= 1.5 and abs((after - before) - used) < 0.2, (before, after, used)
 
 
 def test_textured_mask_sees_texture_not_shading_or_edges():

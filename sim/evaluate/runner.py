@@ -85,6 +85,7 @@ from sim.evaluate.stages import (
     fresh_arm_pose,
     fresh_view_stage,
     manipulation_stage,
+    process_cpu_s,
     reconstruct_stage,
     register_configuration,
     register_stage,
@@ -109,10 +110,12 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
     timings = result["timings_s"]
     stage = "load"
     t_scene = time.perf_counter()
+    scene_pool, cpu_before = None, None
     try:
         # the second process starts first: its start (imports, its stage keys) runs beside this
         # process's stage keys, the scene's loading and the texture check
         with second_process(ev) as pool:
+            scene_pool, cpu_before = pool, process_cpu_s(pool)
             freeze_code_keys()  # the stages are keyed by the code this process runs
             scene = load_scene(name)
             result["scene"] = scene.name
@@ -223,6 +226,10 @@ def evaluate_scene(name: str, ev: EvalConfig, out_dir: Path) -> dict:
         result["traceback"] = traceback.format_exc()
         log.error("%s failed in stage %s: %s", name, stage, err)
     result["wall_s"] = time.perf_counter() - t_scene
+    # the kept second process's CPU over the scene (its block has waited for its tasks)
+    cpu_after = process_cpu_s(scene_pool)
+    if cpu_before is not None and cpu_after is not None:
+        result["second_process_cpu_s"] = cpu_after - cpu_before
     v = gates.verdict(result, manipulate=ev.manipulate)
     result["passed"], result["failed_gates"] = v["passed"], v["failed"]
     return result

@@ -271,6 +271,23 @@ def close_second_process() -> None:
 atexit.register(close_second_process)
 
 
+def process_cpu_s(pool: ProcessPoolExecutor | None) -> float | None:
+    """User + system CPU seconds the worker of ``pool`` (a second process) has used so far, read
+    from ``/proc`` without asking the worker (it may be busy); None without a pool, a worker or
+    ``/proc``. A kept worker is nobody's finished child until it ends, so the evaluating
+    process's own ``RUSAGE_CHILDREN`` does not hold its CPU: a scene's record takes the
+    difference over the scene (``second_process_cpu_s``)."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    if len(processes) != 1:
+        return None
+    try:
+        fields = Path(f"/proc/{processes[0].pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    # after the command's closing parenthesis: state is field 3, utime 14 and stime 15
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 @contextlib.contextmanager
 def second_process(ev: EvalConfig) -> Iterator[ProcessPoolExecutor | None]:
     """The scene's second process (spawned, one worker that dies with this one), or None
