@@ -19,7 +19,7 @@ import numpy as np
 
 from artrecon._version import __version__
 from artrecon.errors import InputError
-from artrecon.files import write_text_atomic
+from artrecon.files import json_dumps, write_text_atomic
 from artrecon.procrustes import Similarity
 
 log = logging.getLogger(__name__)
@@ -385,7 +385,7 @@ class ArticulatedModel:
         """Write the model as JSON (lossless); returns the path."""
         path = Path(path)
         # whole or not at all: a run killed while writing leaves the old file, never half a model
-        write_text_atomic(path, json.dumps(self.to_dict(), indent=1))
+        write_text_atomic(path, json_dumps(self.to_dict()))  # its point lists one line each
         log.info("saved articulated model (%d links, %d joints) to %s",
                  len(self.links), len(self.joints), path)
         return path
