@@ -337,6 +337,9 @@ class SceneRecord(_Record):
     scale_error_pct: float | None = None
     traceback: str | None = None
     wall_s: float | None = None
+    second_process_cpu_s: float | None = None
+    """CPU seconds the scene's second process used over the scene (kept across scenes, it is no
+    finished child of the evaluating process: its CPU is read from /proc)"""
     passed: bool | None = None
     failed_gates: list[GateCheck] | None = None
     pictures_error: str | None = None
