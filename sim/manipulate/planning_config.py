@@ -104,11 +104,11 @@ class PlanningConfig:
     rolls_deg: tuple[float, ...] = (0, 45, 90, 135, 180, 225, 270, 315)
     """rolls of the gripper about the approach axis tried per candidate (deg)"""
     max_candidates: int = 80
-    """candidates planned, in order of preference, before giving up. 40 until the survey's
-    half-size photographs (``sim.views.SurveyConfig.image_scale``): on their view plan the
-    imported chest's lid was grasped at its 55th candidate, its front face, after 54 along
-    the top of its front edge out of reach (its drawer at the 15th). A scene planned within 40
-    plans the same grasp either way; only a search that would have given up goes on"""
+    """candidates planned, in order of preference, before giving up (40 before 2fdffd3: on the
+    view plan of a half-size survey, ``sim.views.SurveyConfig.image_scale`` 0.5, the imported
+    chest's lid was grasped at its 55th candidate, its front face, after 54 along the top of
+    its front edge out of reach). A scene planned within 40 plans the same grasp either way;
+    only a search that would have given up goes on"""
     pull_alignment_deg: float = 30.0
     """candidates whose normal lies within this angle (deg) of the motion's direction at their
     point rank first (:func:`sim.manipulate.planning.rank`)"""
