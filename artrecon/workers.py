@@ -92,6 +92,12 @@ def submit(pool: ProcessPoolExecutor, fn, *args, **kwargs) -> Future:
         signal.signal(signal.SIGINT, previous)
 
 
+def processes(pool: ProcessPoolExecutor | None) -> list:
+    """The worker processes a pool has started so far (none before its first submit, or
+    without a pool): ``ProcessPoolExecutor`` keeps them in a private mapping."""
+    return list((getattr(pool, "_processes", None) or {}).values())
+
+
 def stop(pool: ProcessPoolExecutor) -> None:
     """Kill a pool's worker processes and shut it down without waiting for their tasks; used
     when the parent was interrupted. Their partial output is the parent's to discard (work
@@ -100,7 +106,7 @@ def stop(pool: ProcessPoolExecutor) -> None:
     SIGKILL, not SIGTERM: importing pycolmap installs glog's failure signal handler, which
     answers SIGTERM with a 30-line native stack dump on stderr (the worker ends no cleaner
     for it: Python has no SIGTERM handler of its own here)."""
-    for process in list((getattr(pool, "_processes", None) or {}).values()):
+    for process in processes(pool):
         if process.is_alive():
             process.kill()
     # waits only for the pool's manager thread, which ends at once with its workers dead: left

@@ -253,7 +253,7 @@ def _start_second_process() -> ProcessPoolExecutor:
 def _usable(pool: ProcessPoolExecutor, started_by: threading.Thread) -> bool:
     """A kept second process serves the next scene only from the thread that started it (its
     worker dies with that thread: see :func:`artrecon.workers.pool`) and only while it works."""
-    processes = list((getattr(pool, "_processes", None) or {}).values())
+    processes = workers.processes(pool)
     return (started_by is threading.current_thread() and started_by.is_alive()
             and not getattr(pool, "_broken", False) and not getattr(pool, "_shutdown_thread", False)
             and all(p.is_alive() for p in processes))
@@ -277,7 +277,7 @@ def process_cpu_s(pool: ProcessPoolExecutor | None) -> float | None:
     ``/proc``. A kept worker is nobody's finished child until it ends, so the evaluating
     process's own ``RUSAGE_CHILDREN`` does not hold its CPU: a scene's record takes the
     difference over the scene (``second_process_cpu_s``)."""
-    processes = list((getattr(pool, "_processes", None) or {}).values())
+    processes = workers.processes(pool)
     if len(processes) != 1:
         return None
     try:
