@@ -99,3 +99,58 @@ def test_joint_estimate_validation_and_tilt():
     T = est.motion(np.pi / 2)
     np.testing.assert_allclose(T[:3, :3] @ [0.2, 0, 0] + T[:3, 3], [0.1, 0.1, 0], atol=1e-12)
     GraspCandidate(np.zeros(3), np.array([0, 0, 1.0]))
+
+
+def _phantom_and_front(scene, world, est):
+    """The drawer's true front-face candidates (normal along the pull) and a phantom 3 cm in
+    front of the highest of them: a model surface where the object is not (a dense surface
+    widened beyond a rim), ranked first (the same face tier, height and pull)."""
+    from sim.manipulate import default_joint, fresh_data, scene_grasp_candidates
+
+    real = scene_grasp_candidates(world, fresh_data(world),
+                                  scene.link(default_joint(scene).child).body_ids)
+    front = [c for c in real if float(c.normal @ est.axis) > 0.9]
+    top = max(front, key=lambda c: c.point[2])
+    return GraspCandidate(top.point + 0.03 * top.normal, top.normal), front
+
+
+def test_a_grasp_that_closes_on_nothing_backs_out_and_the_next_candidate_moves_the_joint():
+    """The first candidate lies 3 cm in front of the drawer: the fingers close on nothing, the
+    arm backs out the way it came, and the next plan (without the missed point's neighbours)
+    grasps the true front in the same physics and opens the drawer as requested. The run says
+    which grasp missed (candidates["missed"], the log)."""
+    scene = load_scene("drawer")
+    world = build_world(scene)
+    est = joint_estimate_from_scene(scene)
+    phantom, front = _phantom_and_front(scene, world, est)
+    res = manipulate(scene, est, REQUESTS["drawer"], world=world,
+                     candidates=[phantom, *front], prefer_hidden=False)
+    (missed,) = res.candidates["missed"]
+    np.testing.assert_allclose(missed["point"], phantom.point)
+    assert "nothing under the fingertips" in missed["error"] and "closed on nothing" in res.log[0]
+    assert float(np.linalg.norm(np.asarray(res.grasp_point) - phantom.point)) > 0.015
+    rel = abs(_achieved(scene, res) - res.requested) / abs(res.requested)
+    assert rel <= gates.GATES["manipulation_relative_error"] and not res.grasp_lost, rel
+
+
+def test_a_missed_grasp_without_regrasps_is_the_end_and_leaves_the_arm_where_it_started():
+    """With ``regrasps=0`` the miss is the manipulation's result (GraspMissed, a
+    ManipulationError): by then the arm is back at its start and the drawer as it was."""
+    from sim.manipulate import GraspMissed, ManipulationError, PlanningConfig, fresh_data
+
+    scene = load_scene("drawer")
+    world = build_world(scene)
+    est = joint_estimate_from_scene(scene)
+    phantom, front = _phantom_and_front(scene, world, est)
+    q_start = fresh_data(world).qpos[world.qidx].copy()
+    with pytest.raises(GraspMissed) as info:
+        manipulate(scene, est, REQUESTS["drawer"], world=world, candidates=[phantom, *front],
+                   prefer_hidden=False, planning_config=PlanningConfig(regrasps=0))
+    miss = info.value
+    assert isinstance(miss, ManipulationError) and "nothing under the fingertips" in str(miss)
+    np.testing.assert_allclose(miss.point, phantom.point)
+    d = miss.physics.d
+    assert np.abs(d.qpos[world.qidx] - q_start).max() < np.deg2rad(1.0)
+    (joint,) = [j.name for j in scene.moving_joints]
+    assert abs(d.qpos[world.object_joints[joint]] - world.qpos_start[world.object_joints[joint]]) \
+        < 1e-3

@@ -256,7 +256,8 @@ class ManipulationRun(_Record):
     arm_contacts: list | None = None
     grasp_roll_deg: float | None = None
     candidates: dict | None = None
-    """grasp candidates: how many, hidden, usable, rejected"""
+    """grasp candidates: how many, hidden, usable, rejected; ``missed``: the grasps before this
+    one that closed on nothing (their points and messages)"""
     peak_force_n: float | None = None
     rms_force_n: float | None = None
     peak_torque_nm: float | None = None

@@ -27,6 +27,7 @@ import numpy as np
 
 from sim.manipulate.estimate import (
     WRONG_AXIS_TILT_DEG,
+    GraspMissed,
     JointEstimate,
     ManipulationError,
     default_joint,
@@ -148,27 +149,74 @@ def manipulate(scene, estimate: JointEstimate, amount: float, *, registered=None
             raise ManipulationError(f"the given grasp point cannot be grasped and moved: {why}")
         summary = {"total": 1, "hidden": int(cand.hidden), "usable": 1,
                    "rejected_before_choice": [], "planned_in": planning.source}
-    else:
-        if candidates is None:
-            if registered is not None:
-                if model_joint is None:
-                    raise ValueError("give model_joint: the model's joint whose child to grasp")
-                candidates = model_grasp_candidates(registered, model_joint, planning_config)
-            else:
-                candidates = scene_grasp_candidates(world, data,
-                                                    scene.link(target.child).body_ids)
-        plan, summary = plan_grasp(planning, candidates, estimate, amount, q_start,
-                                   prefer_hidden=prefer_hidden, seed=seed, moving_links=moving)
+        # the caller's point: its miss is the answer, no other point is tried
+        return _execute(world, plan, estimate, amount, q_start, summary, planning.source, grip,
+                        record_every)
+    if candidates is None:
+        if registered is not None:
+            if model_joint is None:
+                raise ValueError("give model_joint: the model's joint whose child to grasp")
+            candidates = model_grasp_candidates(registered, model_joint, planning_config)
+        else:
+            candidates = scene_grasp_candidates(world, data, scene.link(target.child).body_ids)
+    missed: list[dict] = []
+    physics = None  # a missed grasp's simulation, which the next attempt goes on in
+    while True:
+        try:
+            plan, summary = plan_grasp(planning, candidates, estimate, amount, q_start,
+                                       prefer_hidden=prefer_hidden, seed=seed,
+                                       moving_links=moving)
+        except ManipulationError as err:
+            if not missed:
+                raise
+            raise ManipulationError(f"{err} (after {_missed_text(missed)})") from err
+        try:
+            result = _execute(world, plan, estimate, amount, q_start, summary, planning.source,
+                              grip, record_every, physics)
+        except GraspMissed as miss:
+            missed.append({"point": [float(x) for x in miss.point], "error": str(miss)})
+            if miss.physics is None or len(missed) > planning_config.regrasps:
+                if len(missed) == 1:
+                    raise
+                raise GraspMissed(f"{miss} (after {_missed_text(missed[:-1])})", miss.point,
+                                  miss.contacts, miss.physics) from miss
+            # the arm has backed out the way it came, to q_start; the next attempt goes on in
+            # the same physics (what this one touched stays touched), planned from the model
+            # as before without the missed point's neighbours (the same widened rim)
+            physics = miss.physics
+            log.info("grasp at %s closed on nothing; planning again without the candidates "
+                     "within %.0f mm of it", np.round(miss.point, 3).tolist(),
+                     1e3 * planning_config.regrasp_exclusion)
+            candidates = [c for c in candidates if float(np.linalg.norm(c.point - miss.point))
+                          > planning_config.regrasp_exclusion]
+            continue
+        if missed:
+            result.candidates["missed"] = missed
+            result.log[:0] = [f"grasp {k + 1} of {len(missed) + 1} closed on nothing: "
+                              f"{m['error']}" for k, m in enumerate(missed)]
+        return result
+
+
+def _execute(world, plan, estimate, amount, q_start, summary, planned_in, grip, record_every,
+             physics=None):
+    """:func:`execute_plan` (in ``physics`` when given), the hidden grasp point said in the
+    log."""
     c = plan.candidate
     if c.hidden:
         log.info("grasp point %s is HIDDEN from the wrist camera at the current pose (%s)",
                  np.round(c.point, 3).tolist(), c.visibility)
     result = execute_plan(world, plan, estimate, amount, q_start, candidates_summary=summary,
-                     planned_in=planning.source, grip=grip, record_every=record_every)
+                          planned_in=planned_in, grip=grip, record_every=record_every,
+                          physics=physics)
     if c.hidden:
         result.log.insert(0, f"grasp point {np.round(c.point, 3).tolist()} is HIDDEN from the "
                              f"wrist camera at the current pose ({c.visibility})")
     return result
+
+
+def _missed_text(missed: list[dict]) -> str:
+    return (f"{len(missed)} grasp(s) that closed on nothing, at "
+            + "; ".join(str(np.round(m["point"], 3).tolist()) for m in missed))
 
 
 def replay(scene, estimate: JointEstimate, amount: float, run: dict, *, q_start=None,
@@ -211,7 +259,8 @@ def replay(scene, estimate: JointEstimate, amount: float, run: dict, *, q_start=
 
 
 __all__ = [
-    "GraspCandidate", "GripConfig", "JointEstimate", "ManipulationError", "ManipulationResult",
+    "GraspCandidate", "GraspMissed", "GripConfig", "JointEstimate", "ManipulationError",
+    "ManipulationResult",
     "PlanningConfig", "PlanningWorld", "WRONG_AXIS_TILT_DEG", "World", "achieved_along",
     "build_world", "default_joint", "execute_plan", "fresh_data", "joint_estimate_from_model",
     "joint_estimate_from_scene", "manipulate", "model_grasp_candidates", "moving_links",

@@ -30,7 +30,7 @@ import mujoco
 import numpy as np
 
 from sim.capture import servo_gains
-from sim.manipulate.estimate import JointEstimate, ManipulationError
+from sim.manipulate.estimate import GraspMissed, JointEstimate, ManipulationError
 from sim.manipulate.planning import Plan
 from sim.manipulate.world import World, body_pose, fresh_data, object_joint_values
 
@@ -269,15 +269,22 @@ def even_path(q_points: np.ndarray, step: float) -> np.ndarray:
 
 def execute(world: World, plan: Plan, estimate: JointEstimate, amount: float, q_start, *,
             candidates_summary: dict | None = None, planned_in: str = "",
-            grip: GripConfig = GripConfig(), record_every: float | None = None
-            ) -> ManipulationResult:
+            grip: GripConfig = GripConfig(), record_every: float | None = None,
+            physics: _Run | None = None) -> ManipulationResult:
     """Run ``plan`` in physics from ``q_start``: travel, approach, grasp, motion, hold, release.
+
+    ``physics``: go on in the physics of an earlier attempt (:attr:`GraspMissed.physics`, the
+    arm back at ``q_start``) instead of a fresh world: what that attempt touched stays touched.
 
     Raises
     ------
     ManipulationError
-        The gripper did not arrive at the grasp pose, or nothing of the object is under the
-        fingertips.
+        The gripper did not arrive at the grasp pose, or the fingertips touch a body that is
+        not the object's.
+    GraspMissed
+        Nothing of the object is under the fingertips at the grasp pose (a ManipulationError):
+        the arm has backed out the way it came, to ``q_start``, in the physics the exception
+        holds.
     """
     m, kin = world.model, world.kin
     messages: list[str] = []
@@ -288,18 +295,20 @@ def execute(world: World, plan: Plan, estimate: JointEstimate, amount: float, q_
         messages.append(text)
 
     q_start = kin.clip(np.asarray(q_start, float))
-    data = fresh_data(world, q_start)
-    run = _Run(world, data, grip, record_every)
-    run.d.ctrl[world.aidx] = run.command(q_start)
+    if physics is None:
+        data = fresh_data(world, q_start)
+        run = _Run(world, data, grip, record_every)
+        run.d.ctrl[world.aidx] = run.command(q_start)
+    else:
+        run, data = physics, physics.d
     if plan.travel is not None and np.allclose(plan.travel[0], q_start, atol=1e-6):
         # by the home posture: waypoints evenly spaced, so that follow's speed is even
         path = even_path(np.asarray(plan.travel, float), grip.travel_resample)
-        travel = max(0.5, float(np.sum(np.abs(np.diff(path, axis=0)).max(axis=1)))
-                     / grip.travel_speed)
-        run.follow(path, travel, "travel")
     else:
-        travel = max(0.5, float(np.max(np.abs(plan.q_pre - q_start))) / grip.travel_speed)
-        run.follow(np.array([q_start, plan.q_pre]), travel, "travel")
+        path = np.array([q_start, plan.q_pre])
+    travel = max(0.5, float(np.sum(np.abs(np.diff(path, axis=0)).max(axis=1)))
+                 / grip.travel_speed)
+    run.follow(path, travel, "travel")
     run.settle("travel")
     run.follow(plan.approach, grip.approach_time, "approach")
     run.settle("approach")
@@ -315,10 +324,17 @@ def execute(world: World, plan: Plan, estimate: JointEstimate, amount: float, q_
     standoff = float(np.linalg.norm(plan.T_grasp[:3, 3] - plan.candidate.point))
     hit = mujoco.mj_ray(m, data, T_now[:3, 3], T_now[:3, 2], groups, 1, world.flange_body, geomid)
     if hit < 0 or hit > standoff + grip.reach_margin:
-        raise ManipulationError(
+        run.check_contacts()
+        touched = sorted(run.contacts)
+        # the fingers closed on nothing: the arm backs out the way it came, to q_start
+        run.follow(np.asarray(plan.approach, float)[::-1], grip.approach_time, "retreat")
+        run.follow(path[::-1], travel, "retreat")
+        run.settle("retreat")
+        raise GraspMissed(
             f"nothing under the fingertips at {np.round(plan.candidate.point, 3).tolist()} (ray "
             f"{'missed' if hit < 0 else f'hit at {hit:.3f} m'}): the model's surface is not "
-            "where the object is")
+            "where the object is" + (f"; on its way the arm touched {', '.join(touched[:3])}"
+                                     if touched else ""), plan.candidate.point, touched, run)
     body = int(m.geom_bodyid[int(geomid[0])])
     if body not in world.weld_of_body:
         raise ManipulationError(f"the fingertips touch {m.body(body).name!r}, which is not part "
