@@ -121,11 +121,13 @@ class PlanningConfig:
     then the point's own azimuth about the rail's axis"""
     regrasps: int = 2
     """grasps tried again after one that closed on nothing (:class:`GraspMissed`: the model's
-    surface was not where the object is there) and touched nothing on its way: the arm backs
-    out the way it came and the plan starts over without the candidates near the missed one.
-    scraper_truck at seed 1 (2026-11-29, an AMD EPYC) grasped its boom 1 mm below the boom's
-    side face, on a dense surface widened 5 mm beyond the face's lower rim, which the candidate's
-    rim check (``edge_margin``) took for face; 0: one grasp, its miss the manipulation's end"""
+    surface was not where the object is there): the arm backs out the way it came and the plan
+    starts over without the candidates near the missed one, in the same physics (what the miss
+    touched on its way stays touched). scraper_truck at seed 1 (2026-11-29, an AMD EPYC)
+    grasped its boom 1 mm below the boom's side face, on a dense surface widened 5 mm beyond
+    the face's lower rim, which the candidate's rim check (``edge_margin``) took for face; a
+    6 mm margin avoids that miss but leaves scissors' thin blades without a movable grasp
+    (seeds 1 and 2). 0: one grasp, its miss the manipulation's end"""
     regrasp_exclusion: float = 0.015
     """after a miss, candidates within this distance (m) of the missed point are not tried: the
     same widened rim"""
