@@ -175,11 +175,11 @@ def manipulate(scene, estimate: JointEstimate, amount: float, *, registered=None
                               grip, record_every, physics)
         except GraspMissed as miss:
             missed.append({"point": [float(x) for x in miss.point], "error": str(miss)})
-            if miss.physics is None or len(missed) > planning_config.regrasps:
+            if len(missed) > planning_config.regrasps:
                 if len(missed) == 1:
                     raise
                 raise GraspMissed(f"{miss} (after {_missed_text(missed[:-1])})", miss.point,
-                                  miss.contacts, miss.physics) from miss
+                                  miss.physics) from miss
             # the arm has backed out the way it came, to q_start; the next attempt goes on in
             # the same physics (what this one touched stays touched), planned from the model
             # as before without the missed point's neighbours (the same widened rim)

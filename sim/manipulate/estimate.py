@@ -21,14 +21,13 @@ class GraspMissed(ManipulationError):
     """The gripper reached the grasp pose and closed on nothing: the model's surface is not
     where the object is there (a dense surface widened beyond a rim). What the robot feels, not
     the truth: the fingers close without resistance. ``point`` is the candidate that missed,
-    ``contacts`` the arm's contacts on the way, ``physics`` the simulation after the arm backed
-    out the way it came (:func:`sim.manipulate.execute.execute` goes on in it: whatever the
-    attempt touched stays as it left it)."""
+    ``physics`` the simulation after the arm backed out the way it came (its ``contacts``: what
+    the arm touched; :func:`sim.manipulate.execute.execute` goes on in it: whatever the attempt
+    touched stays as it left it)."""
 
-    def __init__(self, message: str, point, contacts=(), physics=None):
+    def __init__(self, message: str, point, physics):
         super().__init__(message)
         self.point = np.asarray(point, dtype=float)
-        self.contacts = list(contacts)
         self.physics = physics
 
 

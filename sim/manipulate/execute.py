@@ -334,7 +334,7 @@ def execute(world: World, plan: Plan, estimate: JointEstimate, amount: float, q_
             f"nothing under the fingertips at {np.round(plan.candidate.point, 3).tolist()} (ray "
             f"{'missed' if hit < 0 else f'hit at {hit:.3f} m'}): the model's surface is not "
             "where the object is" + (f"; on its way the arm touched {', '.join(touched[:3])}"
-                                     if touched else ""), plan.candidate.point, touched, run)
+                                     if touched else ""), plan.candidate.point, run)
     body = int(m.geom_bodyid[int(geomid[0])])
     if body not in world.weld_of_body:
         raise ManipulationError(f"the fingertips touch {m.body(body).name!r}, which is not part "
