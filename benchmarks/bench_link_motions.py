@@ -7,7 +7,7 @@ RUNS is the ``--out`` folder of ``benchmarks/bench_gates.py`` (or of a sweep): i
 hold each run's ``results.json`` and its ``cache/`` the reconstructions. Nothing is
 reconstructed: each moving link's motion is refitted from its links stage (the matches, their
 weight matrices, the dense points and their labels, as the run left them) by
-:func:`artrecon.surface_fit.refit_link` with
+:func:`artrecon.surface_fit.surface_refit` (the pipeline's own step) with
 
 - the matches alone (the surface's weight 1e-9: the robust refit's optimum),
 - the matches and the dense surface at each ``--weights`` (0.3: the shipped
@@ -26,14 +26,15 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from artrecon.files import read_ply
-from artrecon.geometry import point_spacing, rotation_angle
-from artrecon.procrustes import Similarity
-from artrecon.surface_fit import SurfaceConfig, refit_link
+from artrecon.configuration import load_configuration
+from artrecon.geometry import rotation_angle
+from artrecon.links_stage import load_links
+from artrecon.surface_fit import SurfaceConfig, surface_refit
 from sim.scene import load_scene
 
 
@@ -54,45 +55,31 @@ def link_errors(run: Path, folder: Path, weights: list[float]) -> list[dict]:
     names = result.get("link_correspondence") or {}
     scene = load_scene(result["scene"])
     true_a, true_b = scene.link_poses("a"), scene.link_poses("b")
-    dense = {c: read_ply(folder / c / "dense.ply") for c in "ab"}
-    links = folder / "links"
-    root = json.loads((links / "links.json").read_text())["root"]
-    with np.load(links / "links.npz") as npz:
-        arrays = {k: npz[k] for k in ("rotations", "translations", "scales", "labels_a",
-                                      "labels_b", "precisions")}
-    with np.load(links / "matches.npz") as npz:
-        pa, pb, labels = npz["points_a"], npz["points_b"], npz["labels"]
-    spacing = point_spacing(dense["b"][0])
-    rows = []
-    for k in range(len(arrays["rotations"])):
-        name = names.get(f"link_{k}")
-        if k == root or name not in true_a:
-            continue
-        truth = true_b[name] @ np.linalg.inv(true_a[name])
-        start = Similarity(arrays["rotations"][k], arrays["translations"][k],
-                           float(arrays["scales"][k]))
-        members = labels == k
-        surfaces = []
-        for c in "ab":
-            points, normals, _ = dense[c]
-            mine = arrays[f"labels_{c}"] == k
-            surfaces += [points[mine], normals[mine]]
-        fit = (start, pa[members], pb[members], arrays["precisions"][members], surfaces, spacing)
-        row = {"run": run.name, "link": name, "matches": int(members.sum()),
-               "matches only": _error(fit, truth, 1.0, 1e-9)}
-        row.update({f"surface {w:g}": _error(fit, truth, 1.0, w) for w in weights})
-        row["surface only"] = _error(fit, truth, 1e-6, 1.0)
-        rows.append(row)
-    return rows
+    confs = {c: load_configuration(folder / c) for c in "ab"}
+    links = load_links(folder / "links", confs)
+    seg = links.segmentation
+    moved = {k: true_b[names[f"link_{k}"]] @ np.linalg.inv(true_a[names[f"link_{k}"]])
+             for k in range(seg.n_links)
+             if k != links.root and names.get(f"link_{k}") in true_a}
 
+    def errors(segmentation, weight: float) -> dict[int, float]:
+        refitted, _ = surface_refit(segmentation, links.root, links.points_a, links.points_b,
+                                    confs["a"].dense, confs["b"].dense, links.labels_a,
+                                    links.labels_b, SurfaceConfig(weight=weight))
+        return {k: float(np.degrees(rotation_angle(
+            np.asarray(refitted.transforms[k].rotation) @ truth[:3, :3].T)))
+            for k, truth in moved.items()}
 
-def _error(fit: tuple, truth: np.ndarray, match_scale: float, weight: float) -> float:
-    """Rotation error (deg) of one link's refit: its matches' weight matrices scaled by
-    ``match_scale``, the surface term at ``weight``."""
-    start, match_a, match_b, precisions, surfaces, spacing = fit
-    motion, _, _ = refit_link(start, match_a, match_b, precisions * match_scale, *surfaces,
-                              spacing, SurfaceConfig(weight=weight))
-    return float(np.degrees(rotation_angle(motion.rotation @ truth[:3, :3].T)))
+    fits = {"matches only": errors(seg, 1e-9)}
+    fits.update({f"surface {w:g}": errors(seg, w) for w in weights})
+    # the surface alone: the matches' weights a millionth of theirs
+    fits["surface only"] = errors(replace(
+        seg, precisions=None if seg.precisions is None else seg.precisions * 1e-6,
+        weights=1e-6 * (np.ones(len(seg.labels)) if seg.weights is None else seg.weights)),
+        1.0)
+    labels = np.asarray(seg.labels)
+    return [{"run": run.name, "link": names[f"link_{k}"], "matches": int(np.sum(labels == k)),
+             **{fit: errs[k] for fit, errs in fits.items()}} for k in sorted(moved)]
 
 
 def main(argv=None) -> int:
