@@ -245,6 +245,21 @@ def _disparity_range(vi: _View, vj: _View, R1, R2, P1, P2, sparse: np.ndarray,
     # about half of SGBM's work (scissors A at full resolution: 164 -> 86 disparities per pair
     # on average, the dense step 24.5 -> 20.0 CPU s, 98.3% of the object's points the same bit
     # for bit and as many of them).
+    # The doubled far end also drops the upper ring's view of the object: looking down, the
+    # farthest shared points are the table just around the object, twice their disparity is
+    # nearer than the object's top, and SGBM finds nothing of it (against the rendered depth,
+    # seed 0: the range misses the object in 25 of 61 pairs per configuration of pliers and
+    # pliers_panda, 49 of 121 of scissors, 3-7 of truck_panda and barrett_hand; the side rings'
+    # ranges hold it). Holding the shared points within the crop in the range too (their true
+    # disparities) gave those pairs the object, and made the thin objects' joints worse on
+    # seeds 0-2: scissors' hinge 0.03-0.12 -> 0.16-0.41 deg, its moving link's motion 0.01-0.06
+    # -> 0.07-0.20 deg off (the surface refit), pliers seed 1 0.26 -> 0.28; over the 39 joints
+    # median 0.029 -> 0.033, max 0.26 -> 0.41 deg. From above the flat parts' faces are seen by
+    # pairs mostly 5 degrees apart at disparities near 50 px (full resolution), where SGBM's
+    # bias (-0.16 to -0.24 px, scissors seed 1) is 1.2-1.8 mm of depth (0.38 m away) along the
+    # faces' normals. So the upper ring serves SfM, matching and registration, and the dense
+    # surface comes from the side rings; a range that says so on purpose should replace this
+    # accident once the stereo is less biased.
     Xi = (vi.T_cw[:3, :3] @ sparse.T).T + vi.T_cw[:3, 3]
     Xj = (vj.T_cw[:3, :3] @ sparse.T).T + vj.T_cw[:3, 3]
     rect_i = R1 @ Xi.T  # the points in the first rectified frame
