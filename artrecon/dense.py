@@ -254,12 +254,12 @@ def _disparity_range(vi: _View, vj: _View, R1, R2, P1, P2, sparse: np.ndarray,
     # disparities) gave those pairs the object, and made the thin objects' joints worse on
     # seeds 0-2: scissors' hinge 0.03-0.12 -> 0.16-0.41 deg, its moving link's motion 0.01-0.06
     # -> 0.07-0.20 deg off (the surface refit), pliers seed 1 0.26 -> 0.28; over the 39 joints
-    # median 0.029 -> 0.033, max 0.26 -> 0.41 deg. From above the flat parts' faces are seen by
-    # pairs mostly 5 degrees apart at disparities near 50 px (full resolution), where SGBM's
-    # bias (-0.16 to -0.24 px, scissors seed 1) is 1.2-1.8 mm of depth (0.38 m away) along the
-    # faces' normals. So the upper ring serves SfM, matching and registration, and the dense
-    # surface comes from the side rings; a range that says so on purpose should replace this
-    # accident once the stereo is less biased.
+    # median 0.029 -> 0.033, max 0.26 -> 0.41 deg. Not for SGBM's bias (from above, -0.16 to
+    # -0.24 px at disparities near 50 px, 1.2-1.8 mm of depth along the faces' normals): with it
+    # cut to a third (P1, below) the upper ring's points still took scissors' hinge to 0.35-0.53
+    # deg. So the upper ring serves SfM, matching and registration, and the dense surface comes
+    # from the side rings; a range that says so on purpose should replace this accident once it
+    # is known why the view from above hurts the flat parts.
     Xi = (vi.T_cw[:3, :3] @ sparse.T).T + vi.T_cw[:3, 3]
     Xj = (vj.T_cw[:3, :3] @ sparse.T).T + vj.T_cw[:3, 3]
     rect_i = R1 @ Xi.T  # the points in the first rectified frame
@@ -297,6 +297,13 @@ def _pair_points(vi: _View, vj: _View, img_i, img_j, sparse: np.ndarray, config:
     right = cv2.remap(img_j, m2x, m2y, cv2.INTER_LINEAR)
     inside = (m1x >= 0) & (m1x <= w - 1) & (m1y >= 0) & (m1y <= h - 1)
     bs = config.block_size
+    # P1 = 8 x 3 bs^2 (OpenCV's suggestion) pulls the disparities toward whole pixels and biases
+    # them on slanted surfaces: against the rendered depth the object's median error was -0.07
+    # to -0.38 px on pliers and scissors (full resolution) and +0.04 to +0.15 px on truck (half),
+    # the fused points 0.6-1.2 mm behind the pliers' surface. P1 = 1 x 3 bs^2 cut that to -0.14
+    # to -0.02 and -0.03 to +0.06 px at the same spread, and the joints were no better (seeds 0-2:
+    # axis median 0.029 -> 0.033 deg, RMS 0.077 -> 0.083, max 0.262 -> 0.247; pliers seed 1 0.26
+    # -> 0.17, scissors seed 1 0.03 -> 0.25): the stereo's bias is not what limits them.
     sgbm = cv2.StereoSGBM_create(minDisparity=min_disp, numDisparities=num, blockSize=bs,
                                  P1=8 * 3 * bs * bs, P2=32 * 3 * bs * bs, disp12MaxDiff=1,
                                  uniquenessRatio=config.uniqueness_ratio, speckleWindowSize=100,
