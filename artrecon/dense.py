@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -247,19 +248,21 @@ def _disparity_range(vi: _View, vj: _View, R1, R2, P1, P2, sparse: np.ndarray,
     # for bit and as many of them).
     # The doubled far end also drops the upper ring's view of the object: looking down, the
     # farthest shared points are the table just around the object, twice their disparity is
-    # nearer than the object's top, and SGBM finds nothing of it (against the rendered depth,
-    # seed 0: the range misses the object in 25 of 61 pairs per configuration of pliers and
-    # pliers_panda, 49 of 121 of scissors, 3-7 of truck_panda and barrett_hand; the side rings'
-    # ranges hold it). Holding the shared points within the crop in the range too (their true
-    # disparities) gave those pairs the object, and made the thin objects' joints worse on
-    # seeds 0-2: scissors' hinge 0.03-0.12 -> 0.16-0.41 deg, its moving link's motion 0.01-0.06
-    # -> 0.07-0.20 deg off (the surface refit), pliers seed 1 0.26 -> 0.28; over the 39 joints
-    # median 0.029 -> 0.033, max 0.26 -> 0.41 deg. Not for SGBM's bias (from above, -0.16 to
-    # -0.24 px at disparities near 50 px, 1.2-1.8 mm of depth along the faces' normals): with it
-    # cut to a third (P1, below) the upper ring's points still took scissors' hinge to 0.35-0.53
-    # deg. So the upper ring serves SfM, matching and registration, and the dense surface comes
-    # from the side rings; a range that says so on purpose should replace this accident once it
-    # is known why the view from above hurts the flat parts.
+    # nearer than the object's top, and SGBM finds nothing of it (benchmarks/bench_stereo.py,
+    # seeds 0-2: the range holds less than 90% of the object in 25-26 of 61 pairs per
+    # configuration of pliers and pliers_panda, 49 of 121 of scissors, 13-23 of 43-61 of the
+    # cabinets' and drawer's A, 7 of barrett_hand and truck_panda, 0-3 of the trucks; on pliers
+    # and scissors exactly the upper ring's pairs). Holding the shared points within the crop
+    # in the range too (their true disparities) gave those pairs the object, and made the thin
+    # objects' joints worse on seeds 0-2: scissors' hinge 0.03-0.12 -> 0.16-0.41 deg, its
+    # moving link's motion 0.01-0.06 -> 0.07-0.20 deg off (the surface refit), pliers seed 1
+    # 0.26 -> 0.28; over the 39 joints median 0.029 -> 0.033, max 0.26 -> 0.41 deg (a higher
+    # surface weight does not mend it: 1 and 3 worse still). Not for SGBM's bias (from above,
+    # -0.16 to -0.24 px at disparities near 50 px, 1.2-1.8 mm of depth along the faces'
+    # normals): with it cut to a third (P1, below) the upper ring's points still took scissors'
+    # hinge to 0.35-0.53 deg. So the upper ring serves SfM, matching and registration, and the
+    # dense surface comes from the side rings; a range that says so on purpose should replace
+    # this accident once it is known why the view from above hurts the flat parts.
     Xi = (vi.T_cw[:3, :3] @ sparse.T).T + vi.T_cw[:3, 3]
     Xj = (vj.T_cw[:3, :3] @ sparse.T).T + vj.T_cw[:3, 3]
     rect_i = R1 @ Xi.T  # the points in the first rectified frame
@@ -275,8 +278,33 @@ def _disparity_range(vi: _View, vj: _View, R1, R2, P1, P2, sparse: np.ndarray,
     return min_disp, num
 
 
-def _pair_points(vi: _View, vj: _View, img_i, img_j, sparse: np.ndarray, config: DenseConfig):
-    """World points, colours and source pixel of the SGBM disparity of one rectified pair."""
+@dataclass(frozen=True)
+class PairDisparity:
+    """One stereo pair's SGBM disparity, in the first image rectified (:func:`pair_disparity`)."""
+
+    disparity: np.ndarray
+    """(h, w) float32, pixels (left x minus right x)."""
+    valid: np.ndarray
+    """(h, w) bool: inside the image and strictly inside the searched range."""
+    kept: np.ndarray
+    """(h, w) bool: valid and not dropped beside a depth edge (the pixels the stage turns into
+    points)."""
+    left: np.ndarray
+    """The first image, rectified (BGR)."""
+    R1: np.ndarray
+    P1: np.ndarray
+    P2: np.ndarray
+    Q: np.ndarray
+    """OpenCV ``stereoRectify``'s rotations, projections and reprojection matrix."""
+    search: tuple[int, int]
+    """SGBM's ``(minDisparity, numDisparities)``."""
+
+
+def pair_disparity(vi: _View, vj: _View, img_i, img_j, sparse: np.ndarray,
+                   config: DenseConfig) -> PairDisparity | None:
+    """The SGBM disparity of images ``img_i`` and ``img_j`` (at ``config.downsample``) of views
+    ``vi`` and ``vj``, its range from the ``sparse`` (m, 3) world points both see; None for a
+    pair that rectifies vertically or shares fewer than 10 points."""
     f = config.downsample
     h, w = img_i.shape[:2]
     Ki, Kj = _scaled_K(vi.K, f), _scaled_K(vj.K, f)
@@ -323,10 +351,20 @@ def _pair_points(vi: _View, vj: _View, img_i, img_j, sparse: np.ndarray, config:
         r = config.edge_erosion_px
         far = np.where(valid, disp, np.float32(1e6))
         nearest_far = cv2.erode(far, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
-        valid &= disp - nearest_far <= config.edge_jump_px
-    pts_rect = cv2.reprojectImageTo3D(disp, Q)[valid]
-    cols = left[valid][:, ::-1]  # BGR -> RGB
-    X_cam = pts_rect @ R1  # rectified -> camera i (R1 maps camera i to rectified)
+        kept = valid & (disp - nearest_far <= config.edge_jump_px)
+    else:
+        kept = valid
+    return PairDisparity(disp, valid, kept, left, R1, P1, P2, Q, (min_disp, num))
+
+
+def _pair_points(vi: _View, vj: _View, img_i, img_j, sparse: np.ndarray, config: DenseConfig):
+    """World points and colours of the SGBM disparity of one rectified pair."""
+    pair = pair_disparity(vi, vj, img_i, img_j, sparse, config)
+    if pair is None:
+        return None
+    pts_rect = cv2.reprojectImageTo3D(pair.disparity, pair.Q)[pair.kept]
+    cols = pair.left[pair.kept][:, ::-1]  # BGR -> RGB
+    X_cam = pts_rect @ pair.R1  # rectified -> camera i (R1 maps camera i to rectified)
     T_wc = np.linalg.inv(vi.T_cw)
     X_w = X_cam @ T_wc[:3, :3].T + T_wc[:3, 3]
     ok = X_cam[:, 2] > 0
@@ -459,6 +497,64 @@ def dense_points(sfm, config: DenseConfig = DenseConfig(), progress=None) -> Den
     return fused_points(sfm, config, progress).oriented()
 
 
+@dataclass(frozen=True)
+class StereoPlan:
+    """The stereo pairs of one SfM model as the dense stage forms them (:func:`stereo_plan`)."""
+
+    views: list[_View]
+    """The registered images, by name."""
+    pairs: list[tuple[int, int]]
+    """(reference, partner) indices into ``views``, sorted: steps 1 and 2 of the module
+    docstring."""
+    centre: np.ndarray
+    """The cameras' focus point (:func:`focus_point`)."""
+    cam_dist: float
+    """The cameras' median distance to it."""
+    image_dir: Path
+    downsample: int
+    points: np.ndarray
+    """(m, 3) the SfM points."""
+    point_index: dict
+    """SfM point id -> row of ``points``."""
+
+    def shared_points(self, i: int, j: int) -> np.ndarray:
+        """The SfM points views ``i`` and ``j`` both see, (k, 3)."""
+        rows = [self.point_index[p] for p in self.views[i].point_ids & self.views[j].point_ids
+                if p in self.point_index]
+        return self.points[rows]
+
+    def image(self, k: int) -> np.ndarray:
+        """View ``k``'s image at the stereo's resolution (BGR)."""
+        return _load(self.image_dir / self.views[k].name, self.downsample)
+
+
+def stereo_plan(sfm, config: DenseConfig = DenseConfig()) -> StereoPlan:
+    """The dense stage's stereo pairs of ``sfm`` (an :class:`artrecon.sfm.SfMResult`).
+
+    Raises
+    ------
+    ReconstructionError
+        No two registered images form a stereo pair.
+    """
+    views = _views(sfm)
+    rec = sfm.reconstruction
+    pid = np.array(list(rec.point3D_ids()))
+    xyz = np.array([rec.points3D[i].xyz for i in pid]) if len(pid) else np.zeros((0, 3))
+    centres = np.array([v.centre for v in views])
+    centre = focus_point(centres, np.array([v.axis for v in views]))
+    partners = choose_partners(views, centre, config)
+    if config.pair_cover:
+        partners = cover_pairs(partners)
+    if not partners:
+        raise ReconstructionError("dense: no stereo pair among the registered images (neighbours"
+                                  " too close, too far apart, or above/below each other); use a "
+                                  "ring of views 5-20 degrees apart")
+    return StereoPlan(views, sorted(partners.items()), centre,
+                      float(np.median(np.linalg.norm(centres - centre, axis=1))),
+                      Path(sfm.image_dir), config.downsample, xyz,
+                      {int(p): k for k, p in enumerate(pid)})
+
+
 def fused_points(sfm, config: DenseConfig = DenseConfig(), progress=None) -> FusedPoints:
     """Dense points of one SfM model, without normals (steps 1-5 of the module docstring); their
     normals (step 6) by :meth:`FusedPoints.oriented`, for the points that need them.
@@ -479,38 +575,25 @@ def fused_points(sfm, config: DenseConfig = DenseConfig(), progress=None) -> Fus
     ReconstructionError
         No stereo pair could be formed or no point survived the consistency check.
     """
-    views = _views(sfm)
-    rec = sfm.reconstruction
-    f = config.downsample
-    pid = np.array(list(rec.point3D_ids()))
-    xyz = np.array([rec.points3D[i].xyz for i in pid]) if len(pid) else np.zeros((0, 3))
-    index = {int(p): k for k, p in enumerate(pid)}
+    plan = stereo_plan(sfm, config)
+    views, centre, cam_dist = plan.views, plan.centre, plan.cam_dist
     centres = np.array([v.centre for v in views])
-    centre = focus_point(centres, np.array([v.axis for v in views]))
-    cam_dist = float(np.median(np.linalg.norm(centres - centre, axis=1)))
-    partners = choose_partners(views, centre, config)
-    if config.pair_cover:
-        partners = cover_pairs(partners)
-    if not partners:
-        raise ReconstructionError("dense: no stereo pair among the registered images (neighbours"
-                                  " too close, too far apart, or above/below each other); use a "
-                                  "ring of views 5-20 degrees apart")
+    f = config.downsample
     images = {}
 
     def img(k):
         if k not in images:
-            images[k] = _load(sfm.image_dir / views[k].name, f)
+            images[k] = plan.image(k)
         return images[k]
 
-    h, w = img(next(iter(partners))).shape[:2]
+    h, w = img(plan.pairs[0][0]).shape[:2]
     Ks = [_scaled_K(v.K, f) for v in views]
     clouds, colours, depth = [], [], {}
-    it = sorted(partners.items())
+    it = plan.pairs
     if progress is not None:
         it = tqdm(it, desc="dense stereo", unit="pair", leave=False, file=progress)
     for i, j in it:
-        shared = [index[p] for p in views[i].point_ids & views[j].point_ids if p in index]
-        out = _pair_points(views[i], views[j], img(i), img(j), xyz[shared], config)
+        out = _pair_points(views[i], views[j], img(i), img(j), plan.shared_points(i, j), config)
         if out is None or len(out[0]) == 0:
             continue
         X, c = out
