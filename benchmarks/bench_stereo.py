@@ -42,18 +42,11 @@ from artrecon.settings import ReconstructConfig, with_settings
 from sim.evaluate.scoring import truth_views
 from sim.scene import load_scene
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_link_motions import reconstructions  # noqa: E402  (the same runs' folders)
+
 #: Errors beyond this many pixels count as off the surface (occlusion, mismatch), not noise.
 OFF_PX = 2.0
-
-
-def reconstructions(runs_dir: Path) -> dict[str, Path]:
-    """``{run id: its reconstruction folder}`` (as ``bench_link_motions.py`` finds them)."""
-    found = {}
-    for model in sorted((runs_dir / "cache").glob("reconstruct-*/model/model.json")):
-        images = Path(json.loads(model.read_text())["metadata"]["images_a"]).parts
-        if "runs" in images:
-            found[images[images.index("runs") + 1]] = model.parent
-    return found
 
 
 def object_truth(pair: dense.PairDisparity, K: np.ndarray, depth: np.ndarray,
