@@ -257,6 +257,17 @@ def test_pair_cover_holds_every_image_of_odd_rings_and_partner_only_images():
     assert dense.cover_pairs({}) == {}
 
 
+def _parallel_views(K: np.ndarray, baseline: float) -> list:
+    """Two views with the same ``K`` looking along +z, the second ``baseline`` m to the right
+    of the first (camera j to the right of camera i)."""
+    views = []
+    for x in (0.0, baseline):
+        T = np.eye(4)
+        T[0, 3] = -x
+        views.append(dense._View("v", K, T, np.array([x, 0, 0]), np.array([0, 0, 1.0]), set()))
+    return views
+
+
 def test_disparity_range_ends_at_the_nearest_shared_point():
     """Two parallel cameras 5 cm apart (f 500 px), shared points at 0.3 m and 2 m: the range's
     near end is the nearest points' true disparity (f b / Z = 83.3 px) and its margin, not twice
@@ -265,11 +276,7 @@ def test_disparity_range_ends_at_the_nearest_shared_point():
     about 1 m), both widened by the 8 px margin."""
     K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
     f, b = 500.0, 0.05
-    views = []
-    for x in (0.0, b):  # camera j to the right of camera i
-        T = np.eye(4)
-        T[0, 3] = -x
-        views.append(dense._View("v", K, T, np.array([x, 0, 0]), np.array([0, 0, 1.0]), set()))
+    views = _parallel_views(K, b)
     no_dist = np.zeros(5)
     T_ji = views[1].T_cw @ np.linalg.inv(views[0].T_cw)
     R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(K, no_dist, K, no_dist, (640, 480),
@@ -290,12 +297,7 @@ def test_pair_disparity_of_a_plane_is_its_shift():
     """Two parallel cameras 5 cm apart (f 500 px) facing a textured plane 2.5 m away: the right
     image is the left shifted by f b / Z = 10 px, and the stage's stereo finds 10 px (to SGBM's
     1/16 px step) at 99% of the pixels it keeps, inside a search range that holds it."""
-    K = np.array([[500.0, 0, 159.5], [0, 500, 119.5], [0, 0, 1]])
-    views = []
-    for x in (0.0, 0.05):
-        T = np.eye(4)
-        T[0, 3] = -x
-        views.append(dense._View("v", K, T, np.array([x, 0, 0]), np.array([0, 0, 1.0]), set()))
+    views = _parallel_views(np.array([[500.0, 0, 159.5], [0, 500, 119.5], [0, 0, 1]]), 0.05)
     rng = np.random.default_rng(3)
     texture = cv2.GaussianBlur(rng.integers(0, 256, (240, 340)).astype(np.uint8), (3, 3), 0)
     left = cv2.cvtColor(np.ascontiguousarray(texture[:, 10:330]), cv2.COLOR_GRAY2BGR)
