@@ -84,9 +84,9 @@ def configuration_figures(folder: Path, config: dense.DenseConfig, pairs: int) -
     for i, j in chosen:
         pair = dense.pair_disparity(plan.views[i], plan.views[j], plan.image(i), plan.image(j),
                                     plan.shared_points(i, j), config)
-        K, _, depth, labels = truth[plan.views[i].name]
         if pair is None:
             continue
+        K, _, depth, labels = truth[plan.views[i].name]
         row, col, d_true = object_truth(pair, K, depth, labels)
         if len(d_true) == 0:
             continue
