@@ -1,7 +1,7 @@
 """Time of the main job per scene and per stage, against its floor (issue 20).
 
     python benchmarks/bench_pipeline.py [SCENE ...] [--views 36] [--out DIR] [--no-manipulate]
-                                        [--photo-route SCENE]
+                                        [--photo-route SCENE] [--set capture.FIELD=VALUE ...]
 
 For each scene (default: every bundled scene) runs ``sim.evaluate.evaluate_scene`` at the main
 job's default configuration (36 views per ring, the arm's FK poses, seed 0, manipulation on),
@@ -54,8 +54,11 @@ import time
 from pathlib import Path
 
 import sim  # noqa: F401
+from artrecon.errors import InputError
 from artrecon.files import read_json
+from artrecon.settings import parse_settings
 from sim import evaluate
+from sim.capture_config import SET_EXAMPLE, capture_settings
 from sim.scene import list_scenes
 
 NAN = float("nan")
@@ -212,12 +215,21 @@ def main() -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--photo-route", metavar="SCENE",
                    help="also time the route without poses on this scene's images")
+    p.add_argument("--set", dest="settings", action="append", default=[],
+                   metavar="capture.FIELD=VALUE|views.FIELD=VALUE",
+                   help="time a capture setting instead of the main job's, as python -m "
+                        "sim.evaluate --set takes it (e.g. views.fill=0.9)")
     args = p.parse_args()
     names = args.scenes or list_scenes()
     tmp = tempfile.TemporaryDirectory(prefix="bench-pipeline-")
     out = args.out or Path(tmp.name)
+    try:
+        settings = capture_settings(parse_settings(args.settings, SET_EXAMPLE))
+    except InputError as e:
+        p.error(str(e))
     ev = evaluate.EvalConfig(views=args.views, seed=args.seed,
-                             manipulate=not args.no_manipulate, progress=False)
+                             manipulate=not args.no_manipulate, progress=False,
+                             capture_settings=settings)
     rows = []
     try:
         for name in names:
@@ -226,7 +238,8 @@ def main() -> int:
             # this process's CPU and its finished children's, and the kept second process's
             wall = time.perf_counter() - t
             cpu = _cpu_s() - cpu + (r.get("second_process_cpu_s") or 0.0)
-            row = {"scene": name, "views_per_ring": args.views, "wall_s": round(wall, 1),
+            row = {"scene": name, "views_per_ring": args.views, "settings": args.settings,
+                   "wall_s": round(wall, 1),
                    "cpu_s": round(cpu, 1), "passed": r.get("passed"),
                    "failed_gates": r.get("failed_gates"), "error": r.get("error"),
                    "cached": r.get("cached_stages"),
@@ -245,7 +258,8 @@ def main() -> int:
     walls = [r["wall_s"] for r in rows]
     if walls:
         print(f"\nmedian wall {statistics.median(walls):.1f} s, max {max(walls):.1f} s over "
-              f"{len(walls)} scene(s)")
+              f"{len(walls)} scene(s)" + (f" with {', '.join(args.settings)}" if args.settings
+                                          else ""))
     for r in rows:
         if "photo_route" in r:
             pr = r["photo_route"]
