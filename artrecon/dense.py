@@ -506,16 +506,21 @@ class StereoPlan:
     pairs: list[tuple[int, int]]
     """(reference, partner) indices into ``views``, sorted: steps 1 and 2 of the module
     docstring."""
+    centres: np.ndarray
+    """(m, 3) the views' camera centres."""
     centre: np.ndarray
     """The cameras' focus point (:func:`focus_point`)."""
-    cam_dist: float
-    """The cameras' median distance to it."""
     image_dir: Path
     downsample: int
     points: np.ndarray
     """(m, 3) the SfM points."""
     point_index: dict
     """SfM point id -> row of ``points``."""
+
+    @property
+    def cam_dist(self) -> float:
+        """The cameras' median distance to the focus point."""
+        return float(np.median(np.linalg.norm(self.centres - self.centre, axis=1)))
 
     def shared_points(self, i: int, j: int) -> np.ndarray:
         """The SfM points views ``i`` and ``j`` both see, (k, 3)."""
@@ -549,8 +554,7 @@ def stereo_plan(sfm, config: DenseConfig = DenseConfig()) -> StereoPlan:
         raise ReconstructionError("dense: no stereo pair among the registered images (neighbours"
                                   " too close, too far apart, or above/below each other); use a "
                                   "ring of views 5-20 degrees apart")
-    return StereoPlan(views, sorted(partners.items()), centre,
-                      float(np.median(np.linalg.norm(centres - centre, axis=1))),
+    return StereoPlan(views, sorted(partners.items()), centres, centre,
                       Path(sfm.image_dir), config.downsample, xyz,
                       {int(p): k for k, p in enumerate(pid)})
 
@@ -576,8 +580,7 @@ def fused_points(sfm, config: DenseConfig = DenseConfig(), progress=None) -> Fus
         No stereo pair could be formed or no point survived the consistency check.
     """
     plan = stereo_plan(sfm, config)
-    views, centre, cam_dist = plan.views, plan.centre, plan.cam_dist
-    centres = np.array([v.centre for v in views])
+    views, centres, centre, cam_dist = plan.views, plan.centres, plan.centre, plan.cam_dist
     f = config.downsample
     images = {}
 
