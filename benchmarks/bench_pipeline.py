@@ -220,13 +220,13 @@ def main() -> int:
                    help="time a capture setting instead of the main job's, as python -m "
                         "sim.evaluate --set takes it (e.g. views.fill=0.9)")
     args = p.parse_args()
-    names = args.scenes or list_scenes()
-    tmp = tempfile.TemporaryDirectory(prefix="bench-pipeline-")
-    out = args.out or Path(tmp.name)
     try:
         settings = capture_settings(parse_settings(args.settings, SET_EXAMPLE))
     except InputError as e:
         p.error(str(e))
+    names = args.scenes or list_scenes()
+    tmp = tempfile.TemporaryDirectory(prefix="bench-pipeline-")
+    out = args.out or Path(tmp.name)
     ev = evaluate.EvalConfig(views=args.views, seed=args.seed,
                              manipulate=not args.no_manipulate, progress=False,
                              capture_settings=settings)
