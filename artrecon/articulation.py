@@ -46,6 +46,7 @@ from artrecon.link_motions import (
     merge_equivalent_links,
     robust_refit,
 )
+from artrecon.match_refine import refine_link_matches
 from artrecon.model import Link
 from artrecon.segment import Segmentation, min_link_size, segment_links
 from artrecon.settings import ReconstructConfig
@@ -82,6 +83,9 @@ class Links:
     timings: dict[str, float]
     surface: list = field(default_factory=list)
     """Per moving link, what its surface refit did (:func:`artrecon.surface_fit.surface_refit`)."""
+    refined: np.ndarray | None = None
+    """Per match, whether its points were refined photometrically (:mod:`artrecon.match_refine`;
+    None: not recorded)."""
 
 
 @dataclass
@@ -185,9 +189,16 @@ def find_links(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndar
                background_b: np.ndarray, dense_a, dense_b, config: ReconstructConfig, seed: int,
                *, views_a=None, views_b=None, occluders_a=None, occluders_b=None,
                candidates: tuple[PointDescriptors, PointDescriptors] | None = None,
-               covariances: MatchCovariances | None = None) -> Links:
+               covariances: MatchCovariances | None = None, tracks=None) -> Links:
     """The first steps of :func:`articulate` (its parameters): the links, the base anchored to
-    the background, the guided matches, the robust refit and the dense labels.
+    the background, the guided matches, the matches' points refined photometrically, the robust
+    refit and the dense labels.
+
+    ``tracks``: ``(reconstruction_a, reconstruction_b, point3D_ids_a, point3D_ids_b)``, the two
+    SfM reconstructions (pycolmap) and the 3D point ids of ``points_a`` and ``points_b``; with
+    them and the views, each link's matches are made one physical point in A and B
+    (:func:`artrecon.match_refine.refine_link_matches`, ``config.photometric``); without them
+    the SfM points are used as they are.
 
     Raises
     ------
@@ -202,7 +213,7 @@ def find_links(points_a: np.ndarray, points_b: np.ndarray, background_a: np.ndar
         return _find_links(points_a, points_b, background_a, background_b, dense_a, dense_b,
                            config, seed, views_a=views_a, views_b=views_b,
                            occluders_a=occluders_a, occluders_b=occluders_b,
-                           candidates=candidates, covariances=covariances)
+                           candidates=candidates, covariances=covariances, tracks=tracks)
 
 
 def find_joints(links: Links, config: ReconstructConfig, seed: int) -> JointSet:
@@ -235,7 +246,7 @@ def find_joints(links: Links, config: ReconstructConfig, seed: int) -> JointSet:
 
 def _find_links(points_a, points_b, background_a, background_b, dense_a, dense_b,
                 config: ReconstructConfig, seed: int, *, views_a, views_b, occluders_a,
-                occluders_b, candidates, covariances=None) -> Links:
+                occluders_b, candidates, covariances=None, tracks=None) -> Links:
     timings: dict[str, float] = {}
     t = time.perf_counter()
     # nothing moved, or the whole object did: said first and plainly (NoMotionError, ...), unless
@@ -269,6 +280,20 @@ def _find_links(points_a, points_b, background_a, background_b, dense_a, dense_b
     if candidates is not None and config.guided.enabled:
         points_a, points_b, seg, guided = add_guided_matches(points_a, points_b, seg, candidates,
                                                              anchors, config.guided)
+    refined = np.zeros(len(points_a), bool)
+    if (tracks is not None and config.photometric.enabled and views_a is not None
+            and views_b is not None):
+        # each match's two points made one physical point (artrecon.match_refine)
+        t_photo = time.perf_counter()
+        rec_a, rec_b, ids_a, ids_b = tracks
+        points_a, points_b, refined = refine_link_matches(
+            points_a, points_b, seg.labels, seg.transforms, np.r_[ids_a, guided[:, 0]],
+            np.r_[ids_b, guided[:, 1]], rec_a, rec_b, views_a, views_b, dense_a,
+            config.photometric)
+        timings["photometric"] = time.perf_counter() - t_photo
+        log.info("photometric refinement: %d of the %d matches of links refined (%.1f s)",
+                 int(refined.sum()), int((np.asarray(seg.labels) >= 0).sum()),
+                 timings["photometric"])
     refit_covariances = None
     if covariances is not None and config.segmentation.covariances:
         refit_covariances = fit_covariances(covariances, background_a, background_b, anchors,
@@ -304,7 +329,7 @@ def _find_links(points_a, points_b, background_a, background_b, dense_a, dense_b
     timings["surface"] = time.perf_counter() - t
     links = links_from_labels(dense_a, dense_b, lab_a, lab_b, seg.transforms)
     return Links(seg, root, anchors, lab_a, lab_b, links, points_a, points_b, guided, timings,
-                 surface)
+                 surface, refined)
 
 
 def drop_unsupported_links(seg: Segmentation, root: int | None, anchors: dict | None,

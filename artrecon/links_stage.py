@@ -3,15 +3,18 @@
 Input: ``OUT/matches/`` (:mod:`artrecon.matches_stage`) and the two configurations
 (:mod:`artrecon.configuration`: dense points, cameras, occluders). The steps are
 :func:`artrecon.articulation.find_links`'s: the matches segmented into links (sequential
-RANSAC), the base anchored to the background, the guided matches, the robust refit, the dense
+RANSAC), the base anchored to the background, the guided matches, the matches' points made one
+physical point in A and B (:mod:`artrecon.match_refine`), the robust refit, the dense
 points the table is seen through dropped, every dense point of A and B labelled with a link and
 the moving links' motions refitted with their dense surfaces (:mod:`artrecon.surface_fit`).
 Output: a folder (``OUT/links``), a contract like the matches'::
 
     matches.npz       the matches the links were fitted to (the guided ones appended): points_a,
-                      points_b, point3D_ids_a, point3D_ids_b, votes, labels (link per match,
-                      -1: none); background_a, background_b (the background matches). The
-                      model stage copies it to OUT/matches.npz
+                      points_b (refined photometrically where ``refined``,
+                      :mod:`artrecon.match_refine`), point3D_ids_a, point3D_ids_b, votes,
+                      labels (link per match, -1: none), refined; background_a, background_b
+                      (the background matches). The model stage copies it to
+                      OUT/matches.npz
     links.npz         the rest of the segmentation (each link's A -> B transform:
                       rotations, translations, scales; the shared scale, thresholds, scene
                       sizes, hypotheses, rms, the refit's weights and precisions; the
@@ -64,7 +67,7 @@ FORMAT = "artrecon-links/1"
 #: The record, written last.
 RECORD = "links.json"
 #: The settings the stage reads (``--from joints`` needs them unchanged).
-SETTINGS = ("segmentation", "guided", "assign", "freespace", "region", "surface")
+SETTINGS = ("segmentation", "guided", "assign", "freespace", "region", "surface", "photometric")
 _REQUIRED = {"matches.npz", "links.npz"}
 
 
@@ -94,7 +97,9 @@ def run_links(confs: dict, found, folder: Path, config, seed: int) -> Links:
                            background.points_b, confs["a"].dense, confs["b"].dense, config,
                            seed, views_a=views_a, views_b=views_b,
                            occluders_a=confs["a"].occluders, occluders_b=confs["b"].occluders,
-                           candidates=found.candidates, covariances=found.covariances)
+                           candidates=found.candidates, covariances=found.covariances,
+                           tracks=(sfms["a"].reconstruction, sfms["b"].reconstruction,
+                                   matches.point3D_ids_a, matches.point3D_ids_b))
     except DegenerateError as exc:
         # slightly wrong given poses show up as matches that do not move together
         raise blame_poses(exc, sfms, config.sfm) from exc
@@ -106,8 +111,8 @@ def run_links(confs: dict, found, folder: Path, config, seed: int) -> Links:
             "point3D_ids_a": np.r_[matches.point3D_ids_a, guided[:, 0]],
             "point3D_ids_b": np.r_[matches.point3D_ids_b, guided[:, 1]],
             "votes": np.r_[matches.votes, np.zeros(len(guided), np.int64)],
-            "labels": seg.labels, "background_a": background.points_a,
-            "background_b": background.points_b}),
+            "labels": seg.labels, "refined": links.refined,
+            "background_a": background.points_a, "background_b": background.points_b}),
         "links.npz": npz_bytes(_links_arrays(links)),
         **{f"link_{k}.ply": ply_bytes(lk.points, lk.normals, lk.colours)
            for k, lk in enumerate(links.links)},
@@ -120,6 +125,8 @@ def run_links(confs: dict, found, folder: Path, config, seed: int) -> Links:
         "root": links.root,
         "anchor_fields": {str(k): len(v) for k, v in (links.anchors or {}).items()},
         "links": seg.n_links, "guided_matches": len(guided), "surface": links.surface,
+        "photometric": {"refined": int(links.refined.sum()),
+                        "of": int((np.asarray(seg.labels) >= 0).sum())},
         "timings": links.timings,
     }, RECORD)
     return _read_links(Path(folder), record, confs)
@@ -195,4 +202,4 @@ def _read_links(folder: Path, record: dict, confs: dict) -> Links:
     links = links_from_labels(dense_a, dense_b, a["labels_a"], a["labels_b"], transforms)
     return Links(seg, record["root"], anchors, a["labels_a"], a["labels_b"], links,
                  m["points_a"], m["points_b"], a["guided_ids"], dict(record["timings"]),
-                 record.get("surface", []))
+                 record.get("surface", []), m.get("refined"))

@@ -3,7 +3,8 @@
 Stages (each its own module, plain data between them)::
 
     sfm (per configuration) -> dense (per configuration) -> object region -> features (A x B)
-        -> segment_links -> dense points the table is seen through dropped (artrecon.freespace)
+        -> segment_links -> the matches' points refined photometrically (artrecon.match_refine)
+        -> dense points the table is seen through dropped (artrecon.freespace)
         -> dense points assigned to links -> estimate_joints -> refine_joints
         -> ArticulatedModel
 

@@ -28,6 +28,7 @@ from artrecon.errors import InputError
 from artrecon.features import GuidedConfig, MatchConfig
 from artrecon.freespace import FreeSpaceConfig
 from artrecon.joints import JointConfig
+from artrecon.match_refine import PhotometricConfig
 from artrecon.refine import RefineConfig
 from artrecon.segment import SegmentationConfig
 from artrecon.sfm import SfMConfig
@@ -205,6 +206,17 @@ RANGES: dict[str, Range | Choice] = {
     "surface.loss_scale": Range(0, 1000, "robust standard deviations", **_OPEN),
     "surface.iterations": Range(1, 1000, "rounds"),
     "surface.min_pairs": Range(3, 10**9, "pairs"),
+    # --- photometric (artrecon.match_refine.PhotometricConfig)
+    "photometric.enabled": Range(0, 1, "0 or 1"),
+    "photometric.half_size": Range(1, 50, "pixels"),
+    "photometric.blur": Range(0, 10, "pixels"),
+    "photometric.min_ncc": Range(-1, 1, "correlation"),
+    "photometric.max_shift": Range(0, 100, "pixels", **_OPEN),
+    "photometric.iterations": Range(1, 1000, "rounds"),
+    "photometric.max_residual": Range(0, 100, "pixels", **_OPEN),
+    "photometric.min_views": Range(2, 10**6, "views"),
+    "photometric.min_contrast": Range(0, 255, "grey levels"),
+    "photometric.min_spread_ratio": Range(0, 1, "share of the first principal spread"),
     # --- refine (artrecon.refine.RefineConfig)
     "refine.enabled": Range(0, 1, "0 or 1"),
     "refine.loss_scale": Range(0, 1000, "standard deviations", **_OPEN),
@@ -454,6 +466,7 @@ class ReconstructConfig:
     guided: GuidedConfig = field(default_factory=GuidedConfig)
     refine: RefineConfig = field(default_factory=RefineConfig)
     surface: SurfaceConfig = field(default_factory=SurfaceConfig)
+    photometric: PhotometricConfig = field(default_factory=PhotometricConfig)
 
 
 def with_settings(config: ReconstructConfig, settings: dict[str, float | int | bool | str]

@@ -63,10 +63,14 @@ def test_the_stages_are_the_folders_contract(reconstruction_poses):
     model = _model_figures(whole)["metadata"]
     assert len(found.matches) == model["matches"] == record["matches"]
     assert len(found.background) == model["background_matches"]
-    # the model's matches.npz: the stage's object matches, the guided ones appended
+    # the model's matches.npz: the stage's object matches, the guided ones appended, the points
+    # of the links' matches refined photometrically where ``refined`` (artrecon.match_refine)
     saved = np.load(whole / "matches.npz")
     n = len(found.matches)
-    np.testing.assert_array_equal(saved["points_a"][:n], found.matches.points_a)
+    refined = saved["refined"][:n]
+    assert refined.any() and not refined[saved["labels"][:n] < 0].any()
+    np.testing.assert_array_equal(saved["points_a"][:n][~refined],
+                                  found.matches.points_a[~refined])
     np.testing.assert_array_equal(saved["point3D_ids_b"][:n], found.matches.point3D_ids_b)
     np.testing.assert_array_equal(saved["background_a"], found.background.points_a)
     assert (whole / "matches.npz").read_bytes() == (whole / "links" / "matches.npz").read_bytes()
