@@ -314,3 +314,21 @@ def box_faces(centre, half, step=0.002):
             pts.append(p + centre)
             nrm.append(n)
     return np.vstack(pts), np.vstack(nrm)
+
+
+def ring_cameras(n_views: int, radius: float, elevations_deg=(50.0,)) -> list[tuple[np.ndarray,
+                                                                                     np.ndarray]]:
+    """Cameras on rings about the vertical axis looking at the origin, OpenCV convention (z
+    forward, x level): ``(R_cw, t_cw)`` per view, ring by ring."""
+    out = []
+    for el in elevations_deg:
+        e = np.radians(el)
+        for k in range(n_views):
+            az = 2 * np.pi * k / n_views
+            centre = radius * np.array([np.cos(az) * np.cos(e), np.sin(az) * np.cos(e), np.sin(e)])
+            z = -centre / np.linalg.norm(centre)
+            x = np.cross(z, [0.0, 0.0, 1.0])
+            x /= np.linalg.norm(x)
+            R = np.stack([x, np.cross(z, x), z])
+            out.append((R, -R @ centre))
+    return out

@@ -7,6 +7,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from synthetic import ring_cameras
 
 from artrecon.assign import CameraView
 from artrecon.geometry import rotation_about
@@ -28,17 +29,9 @@ def _texture(seed: int) -> np.ndarray:
 def _ring(n: int = 12, distance: float = 0.6, elevation_deg: float = 50.0) -> list[np.ndarray]:
     """Cameras (T_cw) on a ring looking at the origin, OpenCV convention (z forward)."""
     out = []
-    el = np.radians(elevation_deg)
-    for k in range(n):
-        az = 2 * np.pi * k / n
-        c = distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-        z = -c / np.linalg.norm(c)
-        x = np.cross(z, [0.0, 0.0, 1.0])
-        x /= np.linalg.norm(x)
-        y = np.cross(z, x)
-        R = np.stack([x, y, z])
+    for R, t in ring_cameras(n, distance, (elevation_deg,)):
         T = np.eye(4)
-        T[:3, :3], T[:3, 3] = R, -R @ c
+        T[:3, :3], T[:3, 3] = R, t
         out.append(T)
     return out
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from synthetic import ring_cameras
 
 from artrecon.geometry import rotation_about
 from artrecon.model import Joint
@@ -34,21 +35,9 @@ class TrueJoint:
 
 
 def ring(n_views: int, radius: float = 0.6, elevations=(25.0, 50.0)) -> Views:
-    rots, trans = [], []
-    for el in elevations:
-        for k in range(n_views):
-            az = 2 * np.pi * k / n_views
-            e = np.radians(el)
-            centre = radius * np.array([np.cos(az) * np.cos(e), np.sin(az) * np.cos(e), np.sin(e)])
-            z = -centre / np.linalg.norm(centre)
-            x = np.cross(z, [0.0, 0.0, 1.0])
-            x /= np.linalg.norm(x)
-            y = np.cross(z, x)
-            R = np.stack([x, y, z])
-            rots.append(R)
-            trans.append(-R @ centre)
-    v = len(rots)
-    return Views(np.array(rots), np.array(trans), np.full(v, FOCAL))
+    cams = ring_cameras(n_views, radius, elevations)
+    return Views(np.array([R for R, _ in cams]), np.array([t for _, t in cams]),
+                 np.full(len(cams), FOCAL))
 
 
 def motions(joints: list[TrueJoint], n_links: int) -> list[Similarity]:
