@@ -21,8 +21,9 @@ images themselves say where one point is in every view:
   SfM position.
 
 The same physical point in A and B, each triangulated from tracks of a dozen views or more: the
-spread of the matches around the links' motions falls by about half (every bundled scene, seeds
-0-2, against the truth), and the motions fitted to them with it.
+spread of the matches around the links' true motions falls by about half on the bases and the
+wide links and by up to a third on the long narrow ones (the bundled scenes, seeds 0-2), and
+SfM points a few millimetres off in depth come back to a few tenths (README, issue 23).
 
 Needs the links' motions (for the warp: the patch's shape in B) and the posed images; it changes
 no labels. Any frame and scale: the patch's size is set in the reference image's pixels.
@@ -39,8 +40,7 @@ from scipy.spatial import cKDTree
 
 log = logging.getLogger(__name__)
 
-__all__ = ["PhotometricConfig", "refine_link_matches", "refine_match_points", "spread_ratio",
-           "track_views"]
+__all__ = ["PhotometricConfig", "refine_link_matches", "refine_match_points", "track_views"]
 
 
 @dataclass(frozen=True)
@@ -71,16 +71,7 @@ class PhotometricConfig:
     min_contrast: float = 2.0
     """Grey levels of standard deviation the reference patch needs (flat patches align to
     anything)."""
-    min_spread_ratio: float = 0.25
-    """A link's matches are refined only when they spread across the link: the second
-    principal spread of its matches (in A) at least this share of the first. Measured on the
-    bundled scenes (seeds 0-2, each link's motion against the truth): the links whose matches
-    spread so (ratios 0.29-0.94: the bases, the cabinet's door and drawer, the drawer, the
-    barrett fingers, the truck beds, the scraper's blade) got motions about twice as close to
-    the truth (the cabinet's drawer 0.11 -> 0.04 deg); the long narrow links (0.10-0.24: the
-    pliers' and scissors' moving halves, the scraper's boom) did not: no closer on average and
-    up to 0.11 deg farther, their roll about their length resting on the dense surface
-    (:mod:`artrecon.surface_fit`), which refined matches, claiming more precision, outweigh."""
+
 
 
 def track_views(reconstruction, point_ids: np.ndarray, view_names: list[str]
@@ -383,15 +374,6 @@ def refine_match_points(views_a: list, views_b: list, obs_a: tuple[np.ndarray, n
     return pa, pb, refined
 
 
-def spread_ratio(points: np.ndarray) -> float:
-    """The second principal spread (standard deviation) of ``points`` over the first; 0 for
-    fewer than three points."""
-    if len(points) < 3:
-        return 0.0
-    ev = np.sort(np.linalg.eigvalsh(np.cov(np.asarray(points, float).T)))[::-1]
-    return float(np.sqrt(max(ev[1], 0.0) / ev[0])) if ev[0] > 0 else 0.0
-
-
 def nearest_normals(dense_points: np.ndarray, dense_normals: np.ndarray, points: np.ndarray
                     ) -> np.ndarray:
     """The normal of the nearest dense point to each of ``points``."""
@@ -413,9 +395,7 @@ def refine_link_matches(points_a: np.ndarray, points_b: np.ndarray, labels: np.n
     they are. Returns the points and which were refined."""
     labels = np.asarray(labels)
     pa, pb = np.array(points_a, float), np.array(points_b, float)
-    wide = [k for k in range(len(transforms))
-            if spread_ratio(pa[labels == k]) >= config.min_spread_ratio]
-    sel = np.flatnonzero(np.isin(labels, wide))
+    sel = np.flatnonzero(labels >= 0)
     refined = np.zeros(len(labels), bool)
     if len(sel) == 0 or not config.enabled:
         return pa, pb, refined

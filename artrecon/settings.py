@@ -216,7 +216,6 @@ RANGES: dict[str, Range | Choice] = {
     "photometric.max_residual": Range(0, 100, "pixels", **_OPEN),
     "photometric.min_views": Range(2, 10**6, "views"),
     "photometric.min_contrast": Range(0, 255, "grey levels"),
-    "photometric.min_spread_ratio": Range(0, 1, "share of the first principal spread"),
     # --- refine (artrecon.refine.RefineConfig)
     "refine.enabled": Range(0, 1, "0 or 1"),
     "refine.loss_scale": Range(0, 1000, "standard deviations", **_OPEN),
