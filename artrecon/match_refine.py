@@ -38,9 +38,11 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from artrecon.refine import tracks_of
+
 log = logging.getLogger(__name__)
 
-__all__ = ["PhotometricConfig", "refine_link_matches", "refine_match_points", "track_views"]
+__all__ = ["PhotometricConfig", "refine_link_matches", "refine_match_points"]
 
 
 @dataclass(frozen=True)
@@ -74,30 +76,6 @@ class PhotometricConfig:
 
 
 
-def track_views(reconstruction, point_ids: np.ndarray, view_names: list[str]
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """The images of each point's track, as (point row, view index) pairs.
-
-    Parameters
-    ----------
-    reconstruction : pycolmap.Reconstruction
-    point_ids : (n,) int
-        3D point ids of the reconstruction (one row per match).
-    view_names : list of str
-        The views' image names, in the order of the views given to :func:`refine_match_points`.
-    """
-    index = {name: k for k, name in enumerate(view_names)}
-    by_image = {iid: index.get(im.name, -1) for iid, im in reconstruction.images.items()}
-    rows, views = [], []
-    for r, pid in enumerate(np.asarray(point_ids, np.int64)):
-        for el in reconstruction.points3D[int(pid)].track.elements:
-            v = by_image.get(el.image_id, -1)
-            if v >= 0:
-                rows.append(r)
-                views.append(v)
-    return np.asarray(rows, np.int64), np.asarray(views, np.int64)
-
-
 def _patch_weights(half: int) -> np.ndarray:
     k = np.arange(-half, half + 1)
     gu, gv = np.meshgrid(k, k)
@@ -118,10 +96,10 @@ def _tangent_grids(centres: np.ndarray, normals: np.ndarray, spacing: np.ndarray
 
 
 def _project(view, X: np.ndarray) -> np.ndarray:
-    """Pixel coordinates (..., 2) of points (..., 3) (OpenCV convention)."""
-    Xc = X @ view.T_cw[:3, :3].T + view.T_cw[:3, 3]
-    uv = Xc[..., :2] / Xc[..., 2:3]
-    return uv * view.K[[0, 1], [0, 1]] + view.K[:2, 2]
+    """Pixel coordinates (..., 2) of points (..., 3) (:meth:`artrecon.assign.CameraView.project`,
+    any leading shape)."""
+    u, v, _ = view.project(X.reshape(-1, 3))
+    return np.stack([u, v], -1).reshape(*X.shape[:-1], 2)
 
 
 def _sample(img: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -222,7 +200,8 @@ def refine_match_points(views_a: list, views_b: list, obs_a: tuple[np.ndarray, n
     views_a, views_b : list of :class:`artrecon.assign.CameraView`
         The posed grey images of the two configurations.
     obs_a, obs_b : ((k,) int, (k,) int)
-        (match row, view index) of each point's track (:func:`track_views`).
+        (match row, view index) of each point's track (the ``point`` and ``view`` of
+        :func:`artrecon.refine.tracks_of`).
     points_a, points_b : (n, 3) float
         The matches' SfM points.
     normals_a : (n, 3) float
@@ -339,7 +318,6 @@ def refine_match_points(views_a: list, views_b: list, obs_a: tuple[np.ndarray, n
 
     def triangulate(views, rows, vidx, uv, X0):
         keep = np.ones(len(rows), bool)
-        X = X0
         for _ in range(3):
             X, err = _triangulate(views, rows[keep], vidx[keep], uv[keep], X0)
             worst = np.zeros(n)
@@ -399,17 +377,15 @@ def refine_link_matches(points_a: np.ndarray, points_b: np.ndarray, labels: np.n
     refined = np.zeros(len(labels), bool)
     if len(sel) == 0 or not config.enabled:
         return pa, pb, refined
-    names_a = [v.name for v in views_a]
-    names_b = [v.name for v in views_b]
-    obs_a = track_views(reconstruction_a, np.asarray(ids_a)[sel], names_a)
-    obs_b = track_views(reconstruction_b, np.asarray(ids_b)[sel], names_b)
-    motions = np.zeros((len(transforms), 4, 4))
-    for k, T in enumerate(transforms):
-        motions[k, :3, :3] = T.scale * np.asarray(T.rotation)
-        motions[k, :3, 3] = T.translation
-        motions[k, 3, 3] = 1.0
+    obs = []
+    for rec, ids, views in ((reconstruction_a, ids_a, views_a), (reconstruction_b, ids_b, views_b)):
+        index = {v.name: k for k, v in enumerate(views)}
+        rows = {iid: index[im.name] for iid, im in rec.images.items() if im.name in index}
+        tracks = tracks_of(rec, np.asarray(ids)[sel], rows)
+        obs.append((tracks.point, tracks.view))
+    motions = np.stack([T.matrix for T in transforms])
     normals = nearest_normals(dense_a.points, dense_a.normals, pa[sel])
-    ra, rb, ok = refine_match_points(views_a, views_b, obs_a, obs_b, pa[sel], pb[sel], normals,
+    ra, rb, ok = refine_match_points(views_a, views_b, *obs, pa[sel], pb[sel], normals,
                                      motions[labels[sel]], config)
     pa[sel], pb[sel] = ra, rb
     refined[sel] = ok
